@@ -1,0 +1,1 @@
+"""Rendering: light-stage scenes and polarization image output."""

@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# One-time set-up: a libLLVM that Dr.Jit's LLVM backend accepts (>= 16), and a
+# virtual environment in .venv with the package installed in editable mode.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+have_llvm() {
+    # Dr.Jit needs libLLVM >= 16; Debian 12 ships 14 and 15, which crash it.
+    ldconfig -p 2>/dev/null | grep -Eq 'libLLVM(-|\.so\.)(1[6-9]|[2-9][0-9])'
+}
+
+if ! have_llvm; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+        echo "setup: installing Debian's libllvm19 (Dr.Jit needs libLLVM >= 16)"
+        apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19
+    else
+        echo "setup: Dr.Jit needs libLLVM >= 16 and none was found." >&2
+        echo "       Install it (Debian/Ubuntu: sudo apt-get install libllvm19)," >&2
+        echo "       or set DRJIT_LIBLLVM_PATH to a libLLVM.so of version 16 or newer." >&2
+        exit 1
+    fi
+fi
+
+PYTHON=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    "$PYTHON" -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -e ".[test]"
+touch .venv/.installed
+echo "setup: done (.venv)"
