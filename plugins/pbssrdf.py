@@ -57,59 +57,65 @@ incident direction.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from polarbssrdf.optics.fresnel import fresnel_reflectance, fresnel_transmittance, plus_minus
 from polarbssrdf.optics.microfacet import ggx_distribution, smith_g1_ggx
 from polarbssrdf.optics.pbrdf import pbrdf_intensity, pbrdf_mueller
 
-# name -> (default, lower bound, lower inclusive, upper bound, upper inclusive, spectral?)
+class Parameter(NamedTuple):
+    """Default and valid range of a plugin parameter."""
+
+    default: float
+    low: float
+    low_inclusive: bool
+    high: float | None
+    high_inclusive: bool
+
+    def describe_range(self):
+        left = "[" if self.low_inclusive else "("
+        right = "]" if self.high_inclusive else ")"
+        upper = "inf" if self.high is None else f"{self.high:g}"
+        return f"{left}{self.low:g}, {upper}{right}"
+
+    def check(self, name, values, where=""):
+        """Raise ValueError naming ``name`` if any value is non-finite or out of range."""
+        values = np.asarray(values, dtype=np.float64)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"pbssrdf: parameter '{name}'{where} contains NaN or infinite values")
+        bad = (values < self.low) if self.low_inclusive else (values <= self.low)
+        if self.high is not None:
+            bad |= (values > self.high) if self.high_inclusive else (values >= self.high)
+        if np.any(bad):
+            raise ValueError(
+                f"pbssrdf: parameter '{name}'{where} = {float(values[bad].flat[0]):g} is outside "
+                f"its valid range {self.describe_range()}")
+
+
 PARAMETERS = {
-    "eta": (1.4, 1.0, False, None, False, False),
-    "rho_s": (1.0, 0.0, True, 1.0, True, True),
-    "alpha_s": (0.3, 0.0, False, 1.0, True, False),
-    "rho_ss": (0.0, 0.0, True, 1.0, True, True),
-    "alpha_ss": (0.9, 0.0, False, 1.0, True, False),
-    "rho_sss": (0.5, 0.0, True, 1.0, True, True),
+    "eta": Parameter(1.4, 1.0, False, None, False),
+    "rho_s": Parameter(1.0, 0.0, True, 1.0, True),
+    "alpha_s": Parameter(0.3, 0.0, False, 1.0, True),
+    "rho_ss": Parameter(0.0, 0.0, True, 1.0, True),
+    "alpha_ss": Parameter(0.9, 0.0, False, 1.0, True),
+    "rho_sss": Parameter(0.5, 0.0, True, 1.0, True),
 }
 
 SPECULAR, SINGLE_SCATTERING, SUBSURFACE = 0, 1, 2
 
 
-def _describe_range(low, low_inclusive, high, high_inclusive):
-    left = "[" if low_inclusive else "("
-    right = "]" if high_inclusive else ")"
-    upper = "inf" if high is None else f"{high:g}"
-    return f"{left}{low:g}, {upper}{right}"
-
-
-def _check_range(name, values, low, low_inclusive, high, high_inclusive, where):
-    import numpy as np
-
-    values = np.asarray(values, dtype=np.float64)
-    if not np.all(np.isfinite(values)):
-        raise ValueError(f"pbssrdf: parameter '{name}'{where} contains NaN or infinite values")
-    bad = (values < low) if low_inclusive else (values <= low)
-    if high is not None:
-        bad |= (values > high) if high_inclusive else (values >= high)
-    if np.any(bad):
-        offending = float(values[bad].flat[0])
-        raise ValueError(
-            f"pbssrdf: parameter '{name}'{where} = {offending:g} is outside its valid range "
-            f"{_describe_range(low, low_inclusive, high, high_inclusive)}"
-        )
-
-
 def _load_texture(props, name):
     """The texture for ``name`` (a float becomes a uniform texture), checked against its range."""
-    default, low, low_inc, high, high_inc, _ = PARAMETERS[name]
+    parameter = PARAMETERS[name]
     if name in props:
         value = props[name]
         if isinstance(value, (int, float)):
-            _check_range(name, [value], low, low_inc, high, high_inc, "")
-    texture = props.get_texture(name, default)
+            parameter.check(name, [value])
+    texture = props.get_texture(name, parameter.default)
     params = mi.traverse(texture)
     for key in params.keys():
         if key not in ("value", "data"):
@@ -121,7 +127,7 @@ def _load_texture(props, name):
         is_monochrome = dr.depth_v(data) == 1 if key == "value" else data.shape[-1] == 1
         if mi.is_spectral and not is_monochrome:
             continue
-        _check_range(name, values, low, low_inc, high, high_inc, f" (texture '{key}')")
+        parameter.check(name, values, f" (texture '{key}')")
     return texture
 
 
@@ -147,9 +153,6 @@ def _class_for_variant(variant):
         def traverse(self, callback):
             for name, texture in self.textures.items():
                 callback.put(name, texture, mi.ParamFlags.Differentiable)
-
-        def parameters_changed(self, keys):
-            pass
 
         def _parameters(self, si, active):
             t = self.textures
