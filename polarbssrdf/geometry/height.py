@@ -4,22 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarbssrdf._arrays import constant_like, neighbour_index, take
+
 
 def _shifted(height, axis, step):
-    """``height`` shifted by one texel along ``axis`` (edge texels repeated); NumPy or Dr.Jit."""
-    rows, cols = height.shape[0], height.shape[1]
-    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
-    if axis == 0:
-        i = np.clip(i + step, 0, rows - 1)
-    else:
-        j = np.clip(j + step, 0, cols - 1)
-    index = (i * cols + j).ravel()
-    if isinstance(height, np.ndarray):
-        return height.ravel()[index].reshape(rows, cols)
-    import drjit as dr
-
-    flat = dr.gather(type(height.array), height.array, dr.uint32_array_t(type(height.array))(index))
-    return type(height)(flat, (rows, cols))
+    """``height`` shifted by one texel along ``axis`` (edge texels repeated)."""
+    return take(height, neighbour_index(height.shape[:2], axis, step))
 
 
 def height_gradient(height):
@@ -32,20 +22,12 @@ def height_gradient(height):
     rows, cols = height.shape[0], height.shape[1]
     dH_du = (_shifted(height, 1, +1) - _shifted(height, 1, -1)) * (0.5 * cols)
     dH_dv = (_shifted(height, 0, +1) - _shifted(height, 0, -1)) * (0.5 * rows)
-    if isinstance(height, np.ndarray):
-        # the border differences span one texel, not two
-        dH_du[:, [0, -1]] *= 2.0
-        dH_dv[[0, -1], :] *= 2.0
-    else:
-        import drjit as dr
-
-        scale_u = np.full((rows, cols), 1.0, np.float32)
-        scale_u[:, [0, -1]] = 2.0
-        scale_v = np.full((rows, cols), 1.0, np.float32)
-        scale_v[[0, -1], :] = 2.0
-        dH_du = dH_du * type(height)(scale_u)
-        dH_dv = dH_dv * type(height)(scale_v)
-    return dH_du, dH_dv
+    # the border differences span one texel, not two
+    border_u = np.ones((rows, cols), np.float32)
+    border_u[:, [0, -1]] = 2.0
+    border_v = np.ones((rows, cols), np.float32)
+    border_v[[0, -1], :] = 2.0
+    return dH_du * constant_like(height, border_u), dH_dv * constant_like(height, border_v)
 
 
 def normals_from_height(height, atlas):
@@ -84,7 +66,7 @@ def normals_from_height(height, atlas):
     Tensor = type(height)
 
     def component(array, k):
-        return Tensor(np.ascontiguousarray(array[..., k], dtype=np.float32))
+        return constant_like(height, array[..., k])
 
     du = [component(a, k) + dH_du * component(n0, k) for k in range(3)]
     dv = [component(b, k) + dH_dv * component(n0, k) for k in range(3)]
