@@ -10,14 +10,12 @@ import argparse
 import importlib
 import sys
 
+from polarbssrdf.errors import CommandError
+
 COMMAND_MODULES = (
     "polarbssrdf.render.commands",
     "polarbssrdf.skin.commands",
 )
-
-
-class CommandError(RuntimeError):
-    """An error the user can fix; printed without a traceback."""
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -14,10 +14,11 @@ _callback_installed = False
 
 
 def _register_for_current_variant() -> None:
-    from polarbssrdf.plugins import pbssrdf, ppoint
+    from polarbssrdf.plugins import pbssrdf, pexitance, ppoint
 
     mi.register_bsdf("pbssrdf", lambda props: pbssrdf.make_class()(props))
     mi.register_emitter("ppoint", lambda props: ppoint.make_class()(props))
+    mi.register_emitter("pexitance", lambda props: pexitance.make_class()(props))
 
 
 def _on_variant_change(old_variant, new_variant) -> None:
@@ -26,7 +27,7 @@ def _on_variant_change(old_variant, new_variant) -> None:
 
 
 def register_plugins(install_variant_callback: bool = False) -> bool:
-    """Register ``pbssrdf`` and ``ppoint`` for the active Mitsuba variant.
+    """Register ``pbssrdf``, ``ppoint`` and ``pexitance`` for the active Mitsuba variant.
 
     Parameters
     ----------

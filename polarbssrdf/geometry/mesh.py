@@ -141,13 +141,15 @@ def uv_sphere(radius_mm=50.0, rings=48, segments=96, name="uv_sphere"):
                        np.stack([U.ravel(), V.ravel()], 1), name=name)
 
 
-def to_mitsuba(mesh, bsdf=None, with_normals=True):
+def to_mitsuba(mesh, bsdf=None, emitter=None, with_normals=True):
     """A ``mitsuba.Mesh`` for the active variant, with Mitsuba's UV convention ``(u, 1 - v)``.
 
     Parameters
     ----------
     bsdf : mitsuba.BSDF, optional
         Material to attach.
+    emitter : mitsuba.Emitter, optional
+        Area emitter to attach (e.g. ``pexitance``).
     with_normals : bool
         Store area-weighted vertex normals (smooth shading).
     """
@@ -156,6 +158,8 @@ def to_mitsuba(mesh, bsdf=None, with_normals=True):
     props = mi.Properties()
     if bsdf is not None:
         props["bsdf"] = bsdf
+    if emitter is not None:
+        props["emitter"] = emitter
     result = mi.Mesh(mesh.name, len(mesh.vertices), len(mesh.faces), props,
                      has_vertex_normals=with_normals, has_vertex_texcoords=True)
     params = mi.traverse(result)

@@ -1,0 +1,7 @@
+"""``python -m polarbssrdf`` runs the command line."""
+
+import sys
+
+from polarbssrdf.cli import main
+
+sys.exit(main())

@@ -1,0 +1,53 @@
+"""Biophysical parameters -> optical coefficients of the two layers
+(Donner et al. 2008 form). Units: 1/mm. Arguments broadcast (texels x wavelengths)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import chromophores as ch
+
+
+def epidermis_absorption(wavelength_nm, C_m, beta_m, C_h_out, gamma=0.75):
+    """sigma_a of the epidermis (1/mm), Donner et al. 2008:
+
+    C_m (beta_m sigma_em + (1 - beta_m) sigma_pm)
+      + C_h_out (gamma sigma_oxy + (1 - gamma) sigma_deoxy)
+      + (1 - C_m - C_h_out) sigma_baseline.
+    """
+    wl = ch.check_wavelengths(wavelength_nm)
+    C_m, beta_m, C_h_out = (np.asarray(x, dtype=float) for x in (C_m, beta_m, C_h_out))
+    melanin = beta_m * ch.eumelanin_absorption(wl) + (1.0 - beta_m) * ch.pheomelanin_absorption(wl)
+    return C_m * melanin + C_h_out * ch.blood_absorption(wl, gamma) + (1.0 - C_m - C_h_out) * ch.baseline_absorption(wl)
+
+
+def dermis_absorption(wavelength_nm, C_h_in, gamma=0.75):
+    """sigma_a of the dermis (1/mm): C_h_in sigma_blood + (1 - C_h_in) sigma_baseline."""
+    wl = ch.check_wavelengths(wavelength_nm)
+    C_h_in = np.asarray(C_h_in, dtype=float)
+    return C_h_in * ch.blood_absorption(wl, gamma) + (1.0 - C_h_in) * ch.baseline_absorption(wl)
+
+
+def chromophore_basis(wavelength_nm, gamma=0.75) -> dict[str, np.ndarray]:
+    """The spectra the layer absorptions are linear in (1/mm), for fast models:
+    eumelanin, pheomelanin, blood (at this gamma), baseline, and the reduced
+    scattering of both layers."""
+    wl = ch.check_wavelengths(wavelength_nm)
+    return {
+        "eumelanin": ch.eumelanin_absorption(wl),
+        "pheomelanin": ch.pheomelanin_absorption(wl),
+        "blood": ch.blood_absorption(wl, gamma),
+        "baseline": ch.baseline_absorption(wl),
+        "scattering_epidermis": ch.epidermis_reduced_scattering(wl),
+        "scattering_dermis": ch.dermis_reduced_scattering(wl),
+    }
+
+
+def absorption_from_basis(basis, C_m, beta_m, C_h_out, C_h_in):
+    """(sigma_a epidermis, sigma_a dermis) from a :func:`chromophore_basis`
+    (or its band averages); same formulas as the two functions above."""
+    C_m, beta_m, C_h_out, C_h_in = (np.asarray(x, dtype=float)[..., None] for x in (C_m, beta_m, C_h_out, C_h_in))
+    em, pm, bl, base = basis["eumelanin"], basis["pheomelanin"], basis["blood"], basis["baseline"]
+    epi = C_m * (beta_m * em + (1.0 - beta_m) * pm) + C_h_out * bl + (1.0 - C_m - C_h_out) * base
+    der = C_h_in * bl + (1.0 - C_h_in) * base
+    return epi, der

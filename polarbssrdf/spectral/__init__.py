@@ -1,0 +1,22 @@
+"""Sampled spectral curves and bands (camera response x filter x light),
+band integration; colour-science glue. Wavelengths in nm."""
+
+from .bands import (
+    Band,
+    band_average,
+    band_weights_matrix,
+    bands_from_json,
+    bands_to_json,
+    default_bands,
+    default_camera_responses,
+    default_filters,
+    default_light,
+    make_band,
+)
+from .curves import comb_curve, complementary_curve, gaussian_curve, sample_curve, spectral_distribution, wavelength_grid
+
+__all__ = [
+    "Band", "band_average", "band_weights_matrix", "bands_from_json", "bands_to_json", "default_bands",
+    "default_camera_responses", "default_filters", "default_light", "make_band", "comb_curve",
+    "complementary_curve", "gaussian_curve", "sample_curve", "spectral_distribution", "wavelength_grid",
+]

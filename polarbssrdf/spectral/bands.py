@@ -1,0 +1,164 @@
+"""Spectral bands: camera response x filter transmittance x light spectrum,
+and the band average of any spectral quantity. Wavelengths in nm.
+
+A :class:`Band` stores its sampled weight B(lambda) and serializes to JSON.
+``band_average(S, B) = int S(l) B(l) dl / int B(l) dl`` (trapezoid rule on
+the band's grid).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+from colour import SDS_ILLUMINANTS
+
+from .curves import comb_curve, complementary_curve, gaussian_curve, sample_curve, wavelength_grid
+
+BAND_SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Band:
+    """One spectral band: weights B(lambda) >= 0 sampled at wavelengths_nm."""
+
+    name: str
+    wavelengths_nm: np.ndarray
+    weights: np.ndarray
+    description: str = ""
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        wl = np.asarray(self.wavelengths_nm, dtype=float)
+        w = np.asarray(self.weights, dtype=float)
+        if wl.ndim != 1 or wl.shape != w.shape or wl.size < 2:
+            raise ValueError(f"band {self.name!r}: wavelengths and weights must be matching 1-D arrays (>= 2 samples)")
+        if np.any(np.diff(wl) <= 0):
+            raise ValueError(f"band {self.name!r}: wavelengths must increase strictly")
+        if np.any(w < 0) or not np.all(np.isfinite(w)) or np.trapezoid(w, wl) <= 0:
+            raise ValueError(f"band {self.name!r}: weights must be finite, >= 0 and not all zero")
+        object.__setattr__(self, "wavelengths_nm", wl)
+        object.__setattr__(self, "weights", w)
+
+    @property
+    def centroid_nm(self) -> float:
+        """Weight-averaged wavelength (nm)."""
+        return float(np.trapezoid(self.weights * self.wavelengths_nm, self.wavelengths_nm) / np.trapezoid(self.weights, self.wavelengths_nm))
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "description": self.description,
+            "wavelengths_nm": self.wavelengths_nm.tolist(),
+            "weights": self.weights.tolist(),
+            "metadata": dict(self.metadata),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Band":
+        try:
+            return cls(
+                name=str(data["name"]),
+                wavelengths_nm=np.asarray(data["wavelengths_nm"], dtype=float),
+                weights=np.asarray(data["weights"], dtype=float),
+                description=str(data.get("description", "")),
+                metadata=dict(data.get("metadata", {})),
+            )
+        except KeyError as missing:
+            raise ValueError(f"band description lacks field {missing}") from None
+
+
+def make_band(name, wavelengths_nm, camera=None, filter=None, light=None, description="") -> Band:  # noqa: A002
+    """Band weight = camera response x filter transmittance x light spectrum
+    (each a curve, see :mod:`polarbssrdf.spectral.curves`; None = 1)."""
+    wl = np.asarray(wavelengths_nm, dtype=float)
+    weight = np.ones_like(wl)
+    for curve in (camera, filter, light):
+        if curve is not None:
+            weight = weight * sample_curve(curve, wl)
+    return Band(name, wl, weight, description)
+
+
+def default_camera_responses() -> dict:
+    """Analytic RGB responses of a colour polarization camera (Gaussian-ish,
+    peaks 460 / 530 / 600 nm, 60 nm FWHM) as curves."""
+    return {
+        "B": gaussian_curve(460.0, 60.0),
+        "G": gaussian_curve(530.0, 60.0, 0.95),
+        "R": gaussian_curve(600.0, 60.0, 0.9),
+    }
+
+
+def default_filters() -> dict:
+    """Two complementary comb filters (70 nm period): 'A' passes around
+    440, 510, 580, 650 nm and 'B' around 405, 475, 545, 615, 685 nm, so each
+    camera channel splits into two bands."""
+    comb_a = comb_curve(70.0, 440.0)
+    return {"A": comb_a, "B": complementary_curve(comb_a)}
+
+
+def default_light():
+    """A white phosphor LED: CIE LED-B3 (colour-science's SDS_ILLUMINANTS)."""
+    return SDS_ILLUMINANTS["LED-B3"]
+
+
+def default_bands(wavelengths_nm=None) -> list[Band]:
+    """The default 6 bands: {B, G, R} camera channels x {A, B} comb filters
+    x white LED, sampled at 400-700 nm every 5 nm, sorted by centroid."""
+    wl = wavelength_grid(400.0, 700.0, 5.0) if wavelengths_nm is None else np.asarray(wavelengths_nm, dtype=float)
+    bands = []
+    for channel, camera in default_camera_responses().items():
+        for filt_name, filt in default_filters().items():
+            band = make_band(f"{channel}{filt_name}", wl, camera, filt, default_light(),
+                             description=f"camera {channel} x comb filter {filt_name} x LED-B3")
+            bands.append(band)
+    return sorted(bands, key=lambda b: b.centroid_nm)
+
+
+def bands_to_json(bands) -> str:
+    """JSON text for a list of bands (with a schema version)."""
+    return json.dumps({"schema_version": BAND_SCHEMA_VERSION, "bands": [b.to_dict() for b in bands]})
+
+
+def bands_from_json(text: str) -> list[Band]:
+    """Inverse of :func:`bands_to_json`."""
+    data = json.loads(text)
+    if data.get("schema_version") != BAND_SCHEMA_VERSION:
+        raise ValueError(f"unsupported band schema version {data.get('schema_version')!r}")
+    return [Band.from_dict(b) for b in data["bands"]]
+
+
+def band_weights_matrix(bands, wavelengths_nm) -> np.ndarray:
+    """Matrix M (n_bands x n_wavelengths) with values @ M.T = band averages
+    for spectra sampled at ``wavelengths_nm`` (trapezoid rule, band weights
+    interpolated onto that grid, zero outside the band's range)."""
+    wl = np.asarray(wavelengths_nm, dtype=float)
+    if wl.ndim != 1 or wl.size < 2 or np.any(np.diff(wl) <= 0):
+        raise ValueError("wavelengths must be a strictly increasing 1-D array (>= 2 samples)")
+    dl = np.gradient(wl) if wl.size > 2 else np.full(wl.shape, wl[1] - wl[0])
+    trap = np.concatenate([[0.5 * (wl[1] - wl[0])], 0.5 * (wl[2:] - wl[:-2]), [0.5 * (wl[-1] - wl[-2])]]) if wl.size > 2 else dl / 2
+    rows = []
+    for band in bands:
+        w = np.interp(wl, band.wavelengths_nm, band.weights, left=0.0, right=0.0) * trap
+        total = w.sum()
+        if total <= 0:
+            raise ValueError(f"band {band.name!r} has no weight on the grid {wl[0]:g}-{wl[-1]:g} nm")
+        rows.append(w / total)
+    return np.asarray(rows)
+
+
+def band_average(spectrum, band: Band) -> np.ndarray:
+    """int S(l) B(l) dl / int B(l) dl on the band's own wavelength grid.
+
+    ``spectrum`` is a curve (SpectralDistribution, (wl, values) pair or
+    callable) or an array whose last axis is sampled at
+    ``band.wavelengths_nm`` (leading axes are kept, e.g. texels)."""
+    wl, w = band.wavelengths_nm, band.weights
+    if isinstance(spectrum, np.ndarray) or (isinstance(spectrum, list)):
+        values = np.asarray(spectrum, dtype=float)
+        if values.shape[-1] != wl.size:
+            raise ValueError(f"spectrum has {values.shape[-1]} samples, band {band.name!r} has {wl.size}")
+    else:
+        values = sample_curve(spectrum, wl)
+    return np.trapezoid(values * w, wl, axis=-1) / np.trapezoid(w, wl)
