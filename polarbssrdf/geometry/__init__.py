@@ -12,10 +12,18 @@ exactly where the atlas says.
 from polarbssrdf.geometry.atlas import TexelAtlas, texel_atlas, texel_uv_grid
 from polarbssrdf.geometry.height import normals_from_height
 from polarbssrdf.geometry.face import face_mesh, face_region_masks
-from polarbssrdf.geometry.mesh import SurfaceMesh, load_mesh, subdivide, to_mitsuba, uv_sphere
+from polarbssrdf.geometry.mesh import (
+    SurfaceMesh,
+    displace,
+    load_mesh,
+    sample_map_at_vertices,
+    subdivide,
+    to_mitsuba,
+    uv_sphere,
+)
 
 __all__ = [
     "SurfaceMesh", "load_mesh", "subdivide", "to_mitsuba", "uv_sphere",
     "TexelAtlas", "texel_atlas", "texel_uv_grid", "normals_from_height",
-    "face_mesh", "face_region_masks",
+    "face_mesh", "face_region_masks", "displace", "sample_map_at_vertices",
 ]

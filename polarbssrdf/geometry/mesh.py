@@ -171,3 +171,25 @@ def to_mitsuba(mesh, bsdf=None, emitter=None, with_normals=True):
         params["vertex_normals"] = mi.Float(mesh.vertex_normals().astype(np.float32).ravel())
     params.update()
     return result
+
+
+def sample_map_at_vertices(mesh, values):
+    """Bilinear lookup of a (T, T) map at each vertex's UV (package texture convention)."""
+    from scipy.ndimage import map_coordinates
+
+    values = np.asarray(values, dtype=np.float64)
+    rows, cols = values.shape
+    column = mesh.uvs[:, 0] * cols - 0.5
+    row = (1.0 - mesh.uvs[:, 1]) * rows - 0.5   # Mitsuba v = 1 - v_obj, rows follow Mitsuba v
+    return map_coordinates(values, [row, column], order=1, mode="nearest")
+
+
+def displace(mesh, height_mm):
+    """The mesh with each vertex moved along its normal by the height map (mm) at its UV.
+
+    This is the geometry whose normals :func:`polarbssrdf.geometry.normals_from_height`
+    approximates per texel (eq. 25).
+    """
+    offsets = sample_map_at_vertices(mesh, height_mm)
+    return SurfaceMesh(mesh.vertices + offsets[:, None] * mesh.vertex_normals(), mesh.faces,
+                       mesh.uvs, name=mesh.name)

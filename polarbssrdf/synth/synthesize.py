@@ -1,0 +1,205 @@
+"""Render a synthetic light-stage capture of a sphere or the embedded face, with ground truth.
+
+For every frame, view and band: the face's maps give ``pbssrdf``'s glossy
+parameters and, through the two-layer skin model, the subsurface albedo of
+the band (eq. 47); the coaxial light's transmitted irradiance is diffused in
+texture space with the band's sum-of-Gaussians profile (eq. 44-45) and
+rendered by ``pexitance``; the camera records I0/I45/I90/I135 (or, with
+``raw``, the noisy 12-bit mosaic of a polarization sensor). The geometry is
+the base mesh displaced by the displacement map; the capture stores the
+base mesh, as a multi-view-stereo reconstruction would give it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from polarbssrdf.geometry import displace, face_mesh, texel_atlas, to_mitsuba, uv_sphere
+from polarbssrdf.geometry.face import face_region_masks
+from polarbssrdf.render.lightstage import ring_light_stage
+from polarbssrdf.render.subsurface import diffused_exitance, transmitted_irradiance
+from polarbssrdf.render.view import render_analyser_images, set_exitance, view_scene
+from polarbssrdf.synth.truth import TruthSettings, frame_maps, truth_maps
+
+OBJECTS = ("sphere", "face")
+ANALYSER = ("I0", "I45", "I90", "I135")
+
+
+@dataclasses.dataclass(frozen=True)
+class SynthesisSettings:
+    """What to render.
+
+    Attributes
+    ----------
+    object : str
+        ``"sphere"`` (radius 60 mm) or ``"face"`` (the canonical face, mm).
+    views : int
+        Cameras on the rig, each with its coaxial light (one frame = every view once).
+    frames : int
+        Frames of the sequence (hemoglobin changes over them).
+    resolution : int
+        Image width and height, pixels.
+    texture : int
+        Texture (map) resolution ``T``.
+    spp : int
+        Samples per pixel.
+    seed : int
+        Seed of the truth maps, the render noise and the sensor noise.
+    raw : bool
+        Write noisy raw sensor mosaics instead of analyser images.
+    """
+
+    object: str = "face"
+    views: int = 8
+    frames: int = 1
+    resolution: int = 512
+    texture: int = 512
+    spp: int = 16
+    seed: int = 0
+    raw: bool = False
+
+    def __post_init__(self):
+        if self.object not in OBJECTS:
+            raise ValueError(f"object must be one of {OBJECTS}, got {self.object!r}")
+        for name in ("views", "frames", "resolution", "texture", "spp"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be a positive integer")
+        if self.raw and self.resolution % 2:
+            raise ValueError("raw mosaics need an even resolution (2 x 2 polarizer cells)")
+
+
+def object_mesh(name):
+    """Base geometry of the synthetic object, mm."""
+    return face_mesh(1) if name == "face" else uv_sphere(60.0, rings=96, segments=192)
+
+
+def band_profile_kernels(bands, skin):
+    """Normalized sum-of-Gaussians (weights, variances mm^2) of the two-layer profile per band.
+
+    Eq. 45: the blur is spatially homogeneous, fitted at the base skin
+    parameters (``SkinParameters``) of the capture.
+    """
+    from polarbssrdf.skin import fit_sog, normalized_weights, two_layer_profile, variance_ladder
+    from polarbssrdf.skin.layers import absorption_from_basis
+    from polarbssrdf.skin.model import band_chromophore_basis
+
+    basis = band_chromophore_basis(bands)
+    sa_out, sa_in = absorption_from_basis(basis, skin.C_m, skin.beta_m, skin.C_h_out, skin.C_h_in)
+    r = np.concatenate([[0.0], np.geomspace(1e-4, 30.0, 300)])
+    variances = variance_ladder()
+    kernels = []
+    for band in range(len(bands)):
+        profile = two_layer_profile(r, sa_out[band], basis["scattering_epidermis"][band], sa_in[band],
+                                    basis["scattering_dermis"][band], skin.thickness_mm, skin.eta)
+        kernels.append((normalized_weights(fit_sog(r, profile, variances)), variances))
+    return kernels
+
+
+def subsurface_albedo(maps, bands):
+    """(n_bands, T, T) total diffuse reflectance of the two-layer skin per band (eq. 47)."""
+    from polarbssrdf.skin.model import band_reflectance
+
+    reflectance = band_reflectance(maps["C_m"], maps["beta_m"], maps["C_h_out"], maps["C_h_in"],
+                                   bands, eta=maps["eta"])
+    return np.moveaxis(np.asarray(reflectance, dtype=np.float32), -1, 0)
+
+
+@dataclasses.dataclass
+class PreparedCapture:
+    """Everything fixed before rendering: the rig, geometry, texel atlas, truth and kernels."""
+
+    settings: SynthesisSettings
+    bands: list
+    stage: object
+    base_mesh: object
+    static_maps: dict
+    kernels: list
+    truth_settings: TruthSettings
+    flush_region: np.ndarray | None
+
+    def maps(self, frame):
+        return frame_maps(self.static_maps, frame, self.settings.frames, self.truth_settings,
+                          self.flush_region)
+
+
+def prepare_capture(settings, bands, truth_settings=None):
+    """Rig, geometry, static truth maps and per-band blur kernels of a synthetic capture."""
+    from polarbssrdf.skin.parameters import TABLE2
+
+    truth_settings = truth_settings or TruthSettings()
+    base = object_mesh(settings.object)
+    distance = 600.0 if settings.object == "face" else 450.0
+    stage = ring_light_stage(settings.views, distance_mm=distance, width=settings.resolution,
+                             height=settings.resolution, fov_x_deg=22.0)
+    atlas = texel_atlas(to_mitsuba(base), settings.texture)
+    rng = np.random.default_rng(settings.seed)
+    static = truth_maps(atlas, truth_settings, rng)
+    flush = None
+    if settings.object == "face":
+        masks = face_region_masks(settings.texture)
+        from scipy.ndimage import gaussian_filter
+
+        flush = gaussian_filter(masks["cheeks"].astype(np.float64), 4.0)
+        flush /= max(flush.max(), 1e-12)
+    kernels = band_profile_kernels(bands, TABLE2[tuple(truth_settings.skin)])
+    return PreparedCapture(settings, list(bands), stage, base, static, kernels, truth_settings,
+                           flush)
+
+
+@dataclasses.dataclass
+class FrameState:
+    """What one frame shares between its views: maps, displaced geometry, atlas, albedo."""
+
+    index: int
+    maps: dict
+    mesh: object
+    atlas: object
+    albedo: np.ndarray  # (n_bands, T, T)
+
+
+def prepare_frame(prepared, frame):
+    """Maps of ``frame``, the displaced mesh, its texel atlas and the per-band albedo."""
+    maps = prepared.maps(frame)
+    mesh = displace(prepared.base_mesh, maps["displacement"])
+    atlas = texel_atlas(to_mitsuba(mesh), prepared.settings.texture)
+    return FrameState(frame, maps, mesh, atlas, subsurface_albedo(maps, prepared.bands))
+
+
+def render_frame_view(prepared, state, camera, rng=None):
+    """Images per band (``"<band>.I0"`` ...) of one camera lit by its light in one frame.
+
+    With ``raw``, the channels are ``"<band>.raw"`` sensor mosaics in digital numbers.
+    """
+    settings = prepared.settings
+    light = prepared.stage.light(prepared.stage.light_for_camera[camera.name])
+    scene = view_scene(state.mesh, camera, light, state.maps, np.zeros_like(state.maps["eta"]),
+                       settings.spp, settings.seed)
+    irradiance = transmitted_irradiance(scene, state.atlas, state.maps["eta"])
+    camera_index = [c.name for c in prepared.stage.cameras].index(camera.name)
+    channels, channel_names = {}, None
+    for band_index, band in enumerate(prepared.bands):
+        weights, variances = prepared.kernels[band_index]
+        exitance = diffused_exitance(irradiance, state.albedo[band_index], state.atlas,
+                                     weights, variances)
+        set_exitance(scene, exitance)
+        # a distinct, reproducible sample pattern per image
+        seed = ((settings.seed * 1000 + state.index) * 100 + camera_index) * 100 + band_index
+        images, channel_names = render_analyser_images(scene, settings.spp, seed, channel_names)
+        if settings.raw:
+            channels[f"{band.name}.raw"] = _raw_mosaic(images, rng)
+        else:
+            for name in ANALYSER:
+                channels[f"{band.name}.{name}"] = images[name]
+    return channels
+
+
+def _raw_mosaic(images, rng):
+    """Noisy 12-bit mosaic of a mono polarization sensor (IMX250MZR) from analyser images."""
+    from polarbssrdf.capture import IMX250MZR, SensorNoise, mosaic_images, simulate_raw
+
+    radiance = mosaic_images(images, IMX250MZR)
+    peak = max(float(np.percentile(radiance, 99.9)), 1e-12)
+    noise = SensorNoise(electrons_per_radiance=0.8 * 10500 / peak)
+    return simulate_raw(np.maximum(radiance, 0.0), noise, rng).astype(np.float32)

@@ -1,0 +1,72 @@
+"""Synthetic light-stage views of the face: highlights live in I0 and vanish in I90."""
+
+import numpy as np
+import pytest
+
+import mitsuba as mi
+from polarbssrdf.render.subsurface import diffused_exitance, transmitted_irradiance
+from polarbssrdf.render.view import render_analyser_images, view_scene
+from polarbssrdf.spectral import default_bands
+from polarbssrdf.synth.synthesize import (
+    SynthesisSettings,
+    prepare_capture,
+    prepare_frame,
+    render_frame_view,
+)
+
+
+@pytest.fixture(scope="module")
+def face():
+    mi.set_variant("llvm_ad_mono_polarized")
+    settings = SynthesisSettings(object="face", views=2, resolution=96, texture=128, spp=4)
+    prepared = prepare_capture(settings, default_bands()[:2])
+    return prepared, prepare_frame(prepared, 0)
+
+
+def render(prepared, state, camera, maps, exitance):
+    light = prepared.stage.light(prepared.stage.light_for_camera[camera.name])
+    scene = view_scene(state.mesh, camera, light, maps, exitance, spp=8, seed=1)
+    images, _ = render_analyser_images(scene, 8, seed=1)
+    return images, scene
+
+
+def test_specular_highlights_appear_in_I0_and_vanish_in_I90(face):
+    prepared, state = face
+    camera = prepared.stage.cameras[0]
+    zero = np.zeros_like(state.maps["eta"])
+    glossy, scene = render(prepared, state, camera, state.maps, zero)
+    irradiance = transmitted_irradiance(scene, state.atlas, state.maps["eta"])
+    weights, variances = prepared.kernels[0]
+    exitance = diffused_exitance(irradiance, state.albedo[0], state.atlas, weights, variances)
+    full, _ = render(prepared, state, camera, state.maps, exitance)
+    lit = full["I0"] > 0.05 * full["I0"].max()
+    assert lit.sum() > 500
+    # the coaxial light's highlights are a visible part of I0 ...
+    assert (glossy["I0"][lit] / full["I0"][lit]).max() > 0.2
+    # ... and, 5.7 degrees off coaxial, leave less than 1% of their strength in I90
+    assert np.abs(glossy["I90"][lit]).max() < 0.01 * glossy["I0"][lit].max()
+    # subsurface light is (nearly) depolarized, specular light polarized: I0 >= I90
+    assert np.all(full["I0"][lit] - full["I90"][lit] > -1e-3 * full["I0"].max())
+
+
+def test_rendered_channels_cover_every_band(face):
+    prepared, state = face
+    channels = render_frame_view(prepared, state, prepared.stage.cameras[1])
+    names = {f"{band.name}.{a}" for band in prepared.bands for a in ("I0", "I45", "I90", "I135")}
+    assert set(channels) == names
+    for band in prepared.bands:
+        I0, I45, I90, I135 = (channels[f"{band.name}.{a}"] for a in ("I0", "I45", "I90", "I135"))
+        np.testing.assert_allclose(I0 + I90, I45 + I135, atol=1e-5 * I0.max())
+        assert I0.max() > 0 and np.all(np.isfinite(I0))
+
+
+def test_hemoglobin_changes_over_a_dynamic_sequence(face):
+    prepared, _ = face
+    settings = SynthesisSettings(object="face", views=1, frames=3, resolution=32, texture=64, spp=1)
+    dynamic = prepare_capture(settings, default_bands()[:2], prepared.truth_settings)
+    first, middle = dynamic.maps(0), dynamic.maps(1)
+    assert np.all(middle["C_h_in"] >= first["C_h_in"])
+    positive = first["C_h_in"] > 0
+    assert (middle["C_h_in"][positive] / first["C_h_in"][positive]).max() == pytest.approx(
+        1 + dynamic.truth_settings.hemoglobin_swing, rel=1e-3)
+    np.testing.assert_array_equal(middle["C_m"], first["C_m"])
