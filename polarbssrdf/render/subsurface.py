@@ -123,3 +123,112 @@ def diffused_exitance(irradiance, rho_sss, atlas, sog_weights=(1.0,), sog_varian
     """
     return blur_sum_of_gaussians(irradiance * rho_sss, sog_weights, sog_variances_mm2,
                                  atlas.texel_size_mm, atlas.valid)
+
+
+LAYER_PROFILES = ("R_out_f", "T_out_f", "R_out_b", "T_out_b", "R_in")
+_DELTA_VARIANCE_MM2 = 1e-8  # a Gaussian far below any texel: the identity
+
+
+def layer_totals_maps(maps, bands, thickness_mm=None):
+    """Per band, the five layer totals (eq. 42) at every texel, from the biophysical maps.
+
+    Parameters
+    ----------
+    maps : dict
+        (T, T) maps ``C_m, beta_m, C_h_out, C_h_in`` and ``eta``.
+    bands : list of Band
+        Band-effective optical coefficients per band (see :mod:`polarbssrdf.skin.model`).
+
+    Returns
+    -------
+    list of ``LayerTotals`` with (T, T) fields, one per band.
+    """
+    from polarbssrdf.skin.layers import absorption_from_basis
+    from polarbssrdf.skin.model import band_chromophore_basis
+    from polarbssrdf.skin.model import DEFAULT_THICKNESS_MM
+    from polarbssrdf.skin.twolayer import layer_totals
+
+    basis = band_chromophore_basis(bands)
+    sigma_a_out, sigma_a_in = absorption_from_basis(basis, maps["C_m"], maps["beta_m"],
+                                                    maps["C_h_out"], maps["C_h_in"])
+    thickness = DEFAULT_THICKNESS_MM if thickness_mm is None else thickness_mm
+    return [layer_totals(sigma_a_out[..., b], basis["scattering_epidermis"][b],
+                         sigma_a_in[..., b], basis["scattering_dermis"][b], thickness, maps["eta"])
+            for b in range(len(bands))]
+
+
+def layer_profile_kernels(bands, skin):
+    """Per band, ``name -> (weights, variances mm^2)``: normalized SoG of each layer profile (eq. 43).
+
+    Fitted at the base parameters ``skin`` (``SkinParameters``), since the
+    blur is taken as spatially homogeneous (eq. 45). The unscattered part of
+    the epidermis transmittance, a delta at r = 0, enters as an identity term
+    weighted by its share of the total.
+    """
+    from polarbssrdf.skin.layers import absorption_from_basis
+    from polarbssrdf.skin.model import band_chromophore_basis
+    from polarbssrdf.skin.multipole import ballistic_totals, slab_profiles
+    from polarbssrdf.skin.sog import fit_sog, variance_ladder
+    from polarbssrdf.skin.twolayer import radial_energy
+
+    basis = band_chromophore_basis(bands)
+    sa_out, sa_in = absorption_from_basis(basis, skin.C_m, skin.beta_m, skin.C_h_out, skin.C_h_in)
+    r = np.concatenate([[0.0], np.geomspace(1e-4, 30.0, 300)])
+    ladder = variance_ladder()
+    kernels = []
+    for b in range(len(bands)):
+        ss_out, ss_in = basis["scattering_epidermis"][b], basis["scattering_dermis"][b]
+        d, eta = skin.thickness_mm, skin.eta
+        R_f, T_f = slab_profiles(r, sa_out[b], ss_out, d, eta, 1.0)
+        R_b, T_b = slab_profiles(r, sa_out[b], ss_out, d, 1.0, eta, incidence="diffuse")
+        R_in, _ = slab_profiles(r, sa_in[b], ss_in, np.inf, 1.0, 1.0)
+        _, T_f_ball = ballistic_totals(sa_out[b], ss_out, d, eta, 1.0)
+        _, T_b_ball = ballistic_totals(sa_out[b], ss_out, d, 1.0, eta, incidence="diffuse")
+        profiles = {"R_out_f": (R_f, 0.0), "T_out_f": (T_f, T_f_ball), "R_out_b": (R_b, 0.0),
+                    "T_out_b": (T_b, T_b_ball), "R_in": (R_in, 0.0)}
+        band_kernels = {}
+        for name, (profile, ballistic) in profiles.items():
+            weights = np.clip(fit_sog(r, profile, ladder), 0.0, None)
+            diffuse = radial_energy(r, profile)
+            share = float(ballistic) / max(float(ballistic) + diffuse, 1e-30)
+            weights = (1.0 - share) * weights / max(weights.sum(), 1e-30)
+            band_kernels[name] = (np.concatenate([[share], weights]),
+                                  np.concatenate([[_DELTA_VARIANCE_MM2], ladder]))
+        kernels.append(band_kernels)
+    return kernels
+
+
+def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_interreflections=16):
+    """Exitance below the surface from the two layers' profiles blurred in texture space; eq. 46.
+
+    ``M = G_Rof * (R_of E) + G_Tob * (T_ob S)``, with ``S`` the light the
+    dermis sends up, including the inter-reflections between the layers:
+    ``S = sum_n (G_Rin * R_in  G_Rob * R_ob)^n  G_Rin * (R_in  G_Tof * (T_of E))``
+    (each ``G * X`` a texture-space blur of the per-texel product ``X``). The
+    series stops when a term adds less than ``tolerance`` of the total.
+    Without blur this is ``R_bar E`` with ``R_bar`` of eq. 47.
+
+    Parameters
+    ----------
+    irradiance : (T, T) array
+        Transmitted irradiance ``E`` (:func:`transmitted_irradiance`).
+    totals : LayerTotals
+        Per-texel layer totals of one band (:func:`layer_totals_maps`).
+    kernels : dict
+        That band's normalized kernels (:func:`layer_profile_kernels`).
+    atlas : TexelAtlas
+    """
+    def blur(name, values):
+        weights, variances = kernels[name]
+        return blur_sum_of_gaussians(values, weights, variances, atlas.texel_size_mm, atlas.valid)
+
+    into_dermis = blur("T_out_f", totals.T_out_f * irradiance)
+    upward = blur("R_in", totals.R_in * into_dermis)
+    total_upward = upward
+    for _ in range(max_interreflections):
+        upward = blur("R_in", totals.R_in * blur("R_out_b", totals.R_out_b * upward))
+        total_upward = total_upward + upward
+        if np.abs(upward).max() <= tolerance * max(np.abs(total_upward).max(), 1e-30):
+            break
+    return (blur("R_out_f", totals.R_out_f * irradiance)
+            + blur("T_out_b", totals.T_out_b * total_upward)).astype(np.float32)

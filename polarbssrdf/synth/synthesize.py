@@ -1,10 +1,10 @@
 """Render a synthetic light-stage capture of a sphere or the embedded face, with ground truth.
 
 For every frame, view and band: the face's maps give ``pbssrdf``'s glossy
-parameters and, through the two-layer skin model, the subsurface albedo of
-the band (eq. 47); the coaxial light's transmitted irradiance is diffused in
-texture space with the band's sum-of-Gaussians profile (eq. 44-45) and
-rendered by ``pexitance``; the camera records I0/I45/I90/I135 (or, with
+parameters and, through the two-layer skin model, per-texel layer totals
+(eq. 42) whose combination is the band's subsurface albedo (eq. 47); the
+coaxial light's transmitted irradiance is diffused in texture space through
+the layers' sum-of-Gaussians profiles (eq. 46) and rendered by ``pexitance``; the camera records I0/I45/I90/I135 (or, with
 ``raw``, the noisy 12-bit mosaic of a polarization sensor). The geometry is
 the base mesh displaced by the displacement map; the capture stores the
 base mesh, as a multi-view-stereo reconstruction would give it.
@@ -19,7 +19,12 @@ import numpy as np
 from polarbssrdf.geometry import displace, face_mesh, texel_atlas, to_mitsuba, uv_sphere
 from polarbssrdf.geometry.face import face_region_masks
 from polarbssrdf.render.lightstage import ring_light_stage
-from polarbssrdf.render.subsurface import diffused_exitance, transmitted_irradiance
+from polarbssrdf.render.subsurface import (
+    layer_profile_kernels,
+    layer_totals_maps,
+    layered_exitance,
+    transmitted_irradiance,
+)
 from polarbssrdf.render.view import render_analyser_images, set_exitance, view_scene
 from polarbssrdf.synth.truth import TruthSettings, frame_maps, truth_maps
 
@@ -75,28 +80,6 @@ def object_mesh(name):
     return face_mesh(1) if name == "face" else uv_sphere(60.0, rings=96, segments=192)
 
 
-def band_profile_kernels(bands, skin):
-    """Normalized sum-of-Gaussians (weights, variances mm^2) of the two-layer profile per band.
-
-    Eq. 45: the blur is spatially homogeneous, fitted at the base skin
-    parameters (``SkinParameters``) of the capture.
-    """
-    from polarbssrdf.skin import fit_sog, normalized_weights, two_layer_profile, variance_ladder
-    from polarbssrdf.skin.layers import absorption_from_basis
-    from polarbssrdf.skin.model import band_chromophore_basis
-
-    basis = band_chromophore_basis(bands)
-    sa_out, sa_in = absorption_from_basis(basis, skin.C_m, skin.beta_m, skin.C_h_out, skin.C_h_in)
-    r = np.concatenate([[0.0], np.geomspace(1e-4, 30.0, 300)])
-    variances = variance_ladder()
-    kernels = []
-    for band in range(len(bands)):
-        profile = two_layer_profile(r, sa_out[band], basis["scattering_epidermis"][band], sa_in[band],
-                                    basis["scattering_dermis"][band], skin.thickness_mm, skin.eta)
-        kernels.append((normalized_weights(fit_sog(r, profile, variances)), variances))
-    return kernels
-
-
 def subsurface_albedo(maps, bands):
     """(n_bands, T, T) total diffuse reflectance of the two-layer skin per band (eq. 47)."""
     from polarbssrdf.skin.model import band_reflectance
@@ -143,7 +126,7 @@ def prepare_capture(settings, bands, truth_settings=None):
 
         flush = gaussian_filter(masks["cheeks"].astype(np.float64), 4.0)
         flush /= max(flush.max(), 1e-12)
-    kernels = band_profile_kernels(bands, TABLE2[tuple(truth_settings.skin)])
+    kernels = layer_profile_kernels(bands, TABLE2[tuple(truth_settings.skin)])
     return PreparedCapture(settings, list(bands), stage, base, static, kernels, truth_settings,
                            flush)
 
@@ -156,7 +139,8 @@ class FrameState:
     maps: dict
     mesh: object
     atlas: object
-    albedo: np.ndarray  # (n_bands, T, T)
+    albedo: np.ndarray  # (n_bands, T, T), eq. 47
+    layers: list  # per band, LayerTotals of (T, T) maps
 
 
 def prepare_frame(prepared, frame):
@@ -164,7 +148,8 @@ def prepare_frame(prepared, frame):
     maps = prepared.maps(frame)
     mesh = displace(prepared.base_mesh, maps["displacement"])
     atlas = texel_atlas(to_mitsuba(mesh), prepared.settings.texture)
-    return FrameState(frame, maps, mesh, atlas, subsurface_albedo(maps, prepared.bands))
+    return FrameState(frame, maps, mesh, atlas, subsurface_albedo(maps, prepared.bands),
+                      layer_totals_maps(maps, prepared.bands))
 
 
 def render_frame_view(prepared, state, camera, rng=None):
@@ -180,9 +165,8 @@ def render_frame_view(prepared, state, camera, rng=None):
     camera_index = [c.name for c in prepared.stage.cameras].index(camera.name)
     channels, channel_names = {}, None
     for band_index, band in enumerate(prepared.bands):
-        weights, variances = prepared.kernels[band_index]
-        exitance = diffused_exitance(irradiance, state.albedo[band_index], state.atlas,
-                                     weights, variances)
+        exitance = layered_exitance(irradiance, state.layers[band_index],
+                                    prepared.kernels[band_index], state.atlas)
         set_exitance(scene, exitance)
         # a distinct, reproducible sample pattern per image
         seed = ((settings.seed * 1000 + state.index) * 100 + camera_index) * 100 + band_index

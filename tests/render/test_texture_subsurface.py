@@ -69,3 +69,39 @@ def test_irradiance_map_is_shadowed_and_bounded(renders):
     distance = np.linalg.norm(LIGHT["position"]) - 50.0
     assert irradiance.max() <= LIGHT["intensity"] / distance**2
     assert np.mean(irradiance == 0) > 0.3  # the far side of the sphere is dark
+
+
+def test_layered_exitance_without_blur_is_the_eq47_total():
+    """Eq. 46 with delta kernels reduces to R_bar E with R_bar of eq. 47 (closed-form series)."""
+    from polarbssrdf.geometry import texel_atlas, to_mitsuba, uv_sphere
+    from polarbssrdf.render.subsurface import layer_totals_maps, layered_exitance
+    from polarbssrdf.skin.twolayer import two_layer_total
+    from polarbssrdf.spectral import default_bands
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    atlas = texel_atlas(to_mitsuba(uv_sphere(50.0)), 64)
+    rng = np.random.default_rng(3)
+    shape = atlas.valid.shape
+    maps = {"C_m": rng.uniform(0.02, 0.09, shape), "beta_m": rng.uniform(0.02, 0.1, shape),
+            "C_h_out": rng.uniform(0.01, 0.1, shape), "C_h_in": rng.uniform(0.01, 0.06, shape),
+            "eta": rng.uniform(1.38, 1.46, shape)}
+    bands = default_bands()[:2]
+    identity = {name: (np.array([1.0]), np.array([1e-8])) for name in
+                ("R_out_f", "T_out_f", "R_out_b", "T_out_b", "R_in")}
+    irradiance = np.where(atlas.valid, rng.uniform(0.5, 1.5, shape), 0.0).astype(np.float32)
+    for totals in layer_totals_maps(maps, bands):
+        exitance = layered_exitance(irradiance, totals, identity, atlas, tolerance=1e-7)
+        expected = two_layer_total(totals.R_out_f, totals.T_out_f, totals.R_out_b,
+                                   totals.T_out_b, totals.R_in) * irradiance
+        np.testing.assert_allclose(exitance[atlas.valid], expected[atlas.valid], rtol=1e-4)
+
+
+def test_layered_kernels_conserve_energy_of_a_uniform_field():
+    from polarbssrdf.render.subsurface import layer_profile_kernels
+    from polarbssrdf.skin.parameters import TABLE2
+    from polarbssrdf.spectral import default_bands
+
+    for kernels in layer_profile_kernels(default_bands()[:3], TABLE2[("cheek", "III")]):
+        for name, (weights, variances) in kernels.items():
+            assert weights.sum() == pytest.approx(1.0, abs=1e-9), name
+            assert np.all(weights >= 0) and np.all(variances > 0)

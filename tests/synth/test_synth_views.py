@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import mitsuba as mi
-from polarbssrdf.render.subsurface import diffused_exitance, transmitted_irradiance
+from polarbssrdf.render.subsurface import layered_exitance, transmitted_irradiance
 from polarbssrdf.render.view import render_analyser_images, view_scene
 from polarbssrdf.spectral import default_bands
 from polarbssrdf.synth.synthesize import (
@@ -36,8 +36,7 @@ def test_specular_highlights_appear_in_I0_and_vanish_in_I90(face):
     zero = np.zeros_like(state.maps["eta"])
     glossy, scene = render(prepared, state, camera, state.maps, zero)
     irradiance = transmitted_irradiance(scene, state.atlas, state.maps["eta"])
-    weights, variances = prepared.kernels[0]
-    exitance = diffused_exitance(irradiance, state.albedo[0], state.atlas, weights, variances)
+    exitance = layered_exitance(irradiance, state.layers[0], prepared.kernels[0], state.atlas)
     full, _ = render(prepared, state, camera, state.maps, exitance)
     lit = full["I0"] > 0.05 * full["I0"].max()
     assert lit.sum() > 500
