@@ -15,6 +15,7 @@ from polarbssrdf.errors import CommandError
 COMMAND_MODULES = (
     "polarbssrdf.render.commands",
     "polarbssrdf.skin.commands",
+    "polarbssrdf.synth.commands",
 )
 
 

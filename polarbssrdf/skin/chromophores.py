@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from polarbssrdf.spectral.curves import read_curve_csv
+
 HEMOGLOBIN_CONCENTRATION_G_PER_L = 150.0
 HEMOGLOBIN_MOLAR_MASS_G_PER_MOL = 64500.0
 DEFAULT_REFRACTIVE_INDEX = 1.4
@@ -37,37 +39,12 @@ def read_extinction_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.nd
     line for a missing header, a wrong field count, a non-number, a negative
     value or wavelengths that are not strictly increasing.
     """
-    rows: list[tuple[float, float, float]] = []
-    header_seen = False
-    with open(path, encoding="utf-8") as handle:
-        for number, raw in enumerate(handle, start=1):
-            line = raw.strip()
-            if not line or line.startswith("#"):
-                continue
-            fields = [f.strip() for f in line.split(",")]
-            if not header_seen:
-                if fields != ["wavelength_nm", "oxyhemoglobin", "deoxyhemoglobin"]:
-                    raise ValueError(
-                        f"{path}: line {number}: expected header "
-                        f"'wavelength_nm,oxyhemoglobin,deoxyhemoglobin', got {line!r}"
-                    )
-                header_seen = True
-                continue
-            if len(fields) != 3:
-                raise ValueError(f"{path}: line {number}: expected 3 fields, got {len(fields)}")
-            try:
-                values = tuple(float(f) for f in fields)
-            except ValueError:
-                raise ValueError(f"{path}: line {number}: not a number in {line!r}") from None
-            if not all(np.isfinite(values)) or min(values) < 0:
-                raise ValueError(f"{path}: line {number}: values must be finite and >= 0")
-            if rows and values[0] <= rows[-1][0]:
-                raise ValueError(f"{path}: line {number}: wavelengths must increase strictly")
-            rows.append(values)  # type: ignore[arg-type]
-    if len(rows) < 2:
+    wavelengths, table = read_curve_csv(
+        path, ("oxyhemoglobin", "deoxyhemoglobin"),
+        check_row=lambda values: "values must be finite and >= 0" if min(values) < 0 else None)
+    if len(wavelengths) < 2:
         raise ValueError(f"{path}: need a header and at least two data lines")
-    table = np.asarray(rows, dtype=float)
-    return table[:, 0], table[:, 1], table[:, 2]
+    return wavelengths, table[:, 0], table[:, 1]
 
 
 @functools.lru_cache(maxsize=1)

@@ -7,46 +7,19 @@ from pathlib import Path
 
 import numpy as np
 
+from polarbssrdf.spectral.curves import read_curve_csv
+
 
 def read_reflectance_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read ``wavelength_nm,reflectance`` rows (a header line with those names
     is required; ``#`` lines are comments). Returns (wavelengths nm,
     reflectance). Raises ``ValueError`` naming the line on malformed input."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such file: {path}")
-    wavelengths, values = [], []
-    header_seen = False
-    with open(path, encoding="utf-8") as handle:
-        for number, raw in enumerate(handle, start=1):
-            line = raw.strip()
-            if not line or line.startswith("#"):
-                continue
-            fields = [f.strip() for f in line.split(",")]
-            if not header_seen:
-                if [f.lower() for f in fields] != ["wavelength_nm", "reflectance"]:
-                    raise ValueError(f"{path}: line {number}: expected header 'wavelength_nm,reflectance', got {line!r}")
-                header_seen = True
-                continue
-            if len(fields) != 2:
-                raise ValueError(f"{path}: line {number}: expected 2 fields, got {len(fields)}")
-            try:
-                wl, value = float(fields[0]), float(fields[1])
-            except ValueError:
-                raise ValueError(f"{path}: line {number}: not a number in {line!r}") from None
-            if not (np.isfinite(wl) and np.isfinite(value)):
-                raise ValueError(f"{path}: line {number}: values must be finite")
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"{path}: line {number}: reflectance must be in [0, 1], got {value:g}")
-            if wavelengths and wl <= wavelengths[-1]:
-                raise ValueError(f"{path}: line {number}: wavelengths must increase strictly")
-            wavelengths.append(wl)
-            values.append(value)
-    if not header_seen:
-        raise ValueError(f"{path}: empty file, expected header 'wavelength_nm,reflectance'")
-    if not wavelengths:
-        raise ValueError(f"{path}: no data lines")
-    return np.asarray(wavelengths), np.asarray(values)
+    def in_unit_range(values):
+        value = values[0]
+        return None if 0.0 <= value <= 1.0 else f"reflectance must be in [0, 1], got {value:g}"
+
+    wavelengths, table = read_curve_csv(path, ("reflectance",), check_row=in_unit_range)
+    return wavelengths, table[:, 0]
 
 
 def format_reflectance_csv(wavelengths_nm, reflectance) -> str:

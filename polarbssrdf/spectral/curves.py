@@ -67,3 +67,60 @@ def comb_curve(period_nm: float, phase_nm: float, low: float = 0.02, high: float
 def complementary_curve(curve, low: float = 0.02, high: float = 0.95):
     """The comb whose teeth sit in the gaps of ``curve``: low + high - curve."""
     return lambda wl: low + high - curve(wl)
+
+
+def read_curve_csv(path, columns, check_row=None):
+    """Read a CSV of tabulated curves: header ``wavelength_nm,<columns...>``, one row per wavelength.
+
+    ``#`` lines are comments (provenance). Checks, each error naming the
+    file and line: the exact header, the field count, numbers, finite
+    values, strictly increasing wavelengths, at least one data row, and
+    ``check_row(values)`` if given (returns an error message or None; values
+    exclude the wavelength).
+
+    Returns
+    -------
+    (wavelength_nm, values)
+        1-D array (nm) and an array (rows, len(columns)).
+    """
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    expected = ["wavelength_nm", *columns]
+    rows = []
+    header_seen = False
+    with open(path, encoding="utf-8") as handle:
+        for number, raw in enumerate(handle, start=1):
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            fields = [f.strip() for f in line.split(",")]
+            if not header_seen:
+                if [f.lower() for f in fields] != expected:
+                    raise ValueError(f"{path}: line {number}: expected header "
+                                     f"{','.join(expected)!r}, got {line!r}")
+                header_seen = True
+                continue
+            if len(fields) != len(expected):
+                raise ValueError(f"{path}: line {number}: expected {len(expected)} fields, "
+                                 f"got {len(fields)}")
+            try:
+                values = [float(f) for f in fields]
+            except ValueError:
+                raise ValueError(f"{path}: line {number}: not a number in {line!r}") from None
+            if not np.all(np.isfinite(values)):
+                raise ValueError(f"{path}: line {number}: values must be finite")
+            if rows and values[0] <= rows[-1][0]:
+                raise ValueError(f"{path}: line {number}: wavelengths must increase strictly")
+            problem = check_row(values[1:]) if check_row is not None else None
+            if problem:
+                raise ValueError(f"{path}: line {number}: {problem}")
+            rows.append(values)
+    if not header_seen:
+        raise ValueError(f"{path}: empty file, expected header {','.join(expected)!r}")
+    if not rows:
+        raise ValueError(f"{path}: no data lines")
+    table = np.asarray(rows, dtype=float)
+    return table[:, 0], table[:, 1:]

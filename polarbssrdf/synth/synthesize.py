@@ -187,3 +187,80 @@ def _raw_mosaic(images, rng):
     peak = max(float(np.percentile(radiance, 99.9)), 1e-12)
     noise = SensorNoise(electrons_per_radiance=0.8 * 10500 / peak)
     return simulate_raw(np.maximum(radiance, 0.0), noise, rng).astype(np.float32)
+
+
+FRAME_INTERVAL_S = 1.0 / 30.0
+
+
+def capture_manifest(prepared):
+    """The capture's manifest: capture-format cameras and lights of the rig, one frame per time step."""
+    from polarbssrdf.io import CaptureManifest, Light, camera_from_look_at, plan_frame
+    from polarbssrdf import __version__
+
+    settings, stage = prepared.settings, prepared.stage
+    sensor = "IMX250MZR" if settings.raw else "ideal"
+    cameras = [camera_from_look_at(c.origin, c.target, c.up, c.fov_x_deg, (c.width, c.height),
+                                   name=c.name, sensor=sensor) for c in stage.cameras]
+    lights = [Light(light.name, position=light.position, intensity=light.intensity,
+                    polarization_axis=light.polarization_axis,
+                    polarizer_normal=light.polarizer_normal) for light in stage.lights]
+    pairs = [(c.name, stage.light_for_camera[c.name]) for c in stage.cameras]
+    kind = "raw" if settings.raw else "analyser"
+    frames = [plan_frame(index, index * FRAME_INTERVAL_S, np.eye(4), pairs, kind)
+              for index in range(settings.frames)]
+    metadata = {"generator": f"polarbssrdf {__version__} synth",
+                "settings": dataclasses.asdict(settings),
+                "skin": list(prepared.truth_settings.skin)}
+    return CaptureManifest(bands=prepared.bands, cameras=cameras, lights=lights, frames=frames,
+                           mesh="mesh.obj", synthetic=True, truth="truth/truth.json",
+                           metadata=metadata)
+
+
+def truth_channels(state, bands):
+    """Ground-truth maps of one frame, with the subsurface albedo per band as ``rho_sss.<band>``."""
+    channels = {name: np.ascontiguousarray(values, dtype=np.float32)
+                for name, values in state.maps.items()}
+    for index, band in enumerate(bands):
+        channels[f"rho_sss.{band.name}"] = np.ascontiguousarray(state.albedo[index])
+    return channels
+
+
+def synthesize(outdir, settings, bands=None, truth_settings=None, overwrite=False, resume=False,
+               progress=True):
+    """Render a synthetic capture with ground truth into ``outdir`` (see the module docstring).
+
+    Images are written one by one as they are rendered; with ``resume`` an
+    interrupted run continues where it stopped (same settings required).
+    Returns the path of the finished ``capture.json``.
+    """
+    from tqdm import tqdm
+
+    from polarbssrdf.io import CaptureWriter
+    from polarbssrdf.spectral import default_bands
+
+    bands = list(bands) if bands is not None else default_bands()
+    prepared = prepare_capture(settings, bands, truth_settings)
+    manifest = capture_manifest(prepared)
+    writer = CaptureWriter(outdir, manifest, overwrite=overwrite, resume=resume)
+    writer.add_mesh(prepared.base_mesh)
+    done, truth_done = writer.completed(), writer.completed_truth()
+    stage = prepared.stage
+    total = settings.frames * len(stage.cameras)
+    with tqdm(total=total, desc="synth", unit="image", disable=not progress) as bar:
+        for frame in range(settings.frames):
+            state = None
+            for camera_index, camera in enumerate(stage.cameras):
+                light = stage.light_for_camera[camera.name]
+                if (frame, camera.name, light) in done:
+                    bar.update()
+                    continue
+                state = state or prepare_frame(prepared, frame)
+                # sensor noise reproducible per image, so a resumed run matches a fresh one
+                rng = np.random.default_rng([settings.seed, frame, camera_index])
+                channels = render_frame_view(prepared, state, camera, rng)
+                writer.add_image(frame, camera.name, light, channels)
+                bar.update()
+            if frame not in truth_done:
+                state = state or prepare_frame(prepared, frame)
+                writer.add_truth(frame, truth_channels(state, bands))
+    return writer.finish()

@@ -116,7 +116,9 @@ def truth_maps(atlas, settings, rng):
 
 
 def frame_maps(static, frame, n_frames, settings, flush_region=None):
-    """Maps of ``frame``: hemoglobin follows one period of a sine over the sequence.
+    """Maps of ``frame``: hemoglobin rises over the sequence (a flush), peaking at the last frame.
+
+    ``C_h = C_h(frame 0) (1 + swing sin(pi/2 frame / (n_frames - 1)) flush)``.
 
     Parameters
     ----------
@@ -127,7 +129,7 @@ def frame_maps(static, frame, n_frames, settings, flush_region=None):
     """
     if n_frames <= 1 or frame == 0:
         return dict(static)
-    phase = np.sin(np.pi * frame / (n_frames - 1))  # 0 -> 1 -> 0 over the sequence
+    phase = np.sin(0.5 * np.pi * frame / (n_frames - 1))
     weight = 1.0 if flush_region is None else flush_region
     factor = 1.0 + settings.hemoglobin_swing * phase * weight
     maps = dict(static)

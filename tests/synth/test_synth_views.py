@@ -63,9 +63,10 @@ def test_hemoglobin_changes_over_a_dynamic_sequence(face):
     prepared, _ = face
     settings = SynthesisSettings(object="face", views=1, frames=3, resolution=32, texture=64, spp=1)
     dynamic = prepare_capture(settings, default_bands()[:2], prepared.truth_settings)
-    first, middle = dynamic.maps(0), dynamic.maps(1)
-    assert np.all(middle["C_h_in"] >= first["C_h_in"])
+    first, middle, last = dynamic.maps(0), dynamic.maps(1), dynamic.maps(2)
+    assert np.all(middle["C_h_in"] >= first["C_h_in"]) and np.all(last["C_h_in"] >= middle["C_h_in"])
     positive = first["C_h_in"] > 0
-    assert (middle["C_h_in"][positive] / first["C_h_in"][positive]).max() == pytest.approx(
+    # the flush is strongest on the cheeks, where it reaches the full swing at the last frame
+    assert (last["C_h_in"][positive] / first["C_h_in"][positive]).max() == pytest.approx(
         1 + dynamic.truth_settings.hemoglobin_swing, rel=1e-3)
-    np.testing.assert_array_equal(middle["C_m"], first["C_m"])
+    np.testing.assert_array_equal(last["C_m"], first["C_m"])
