@@ -1,25 +1,71 @@
 """Multipole diffusion for one homogeneous layer (supplement eq. 9-12, 42;
-Donner & Jensen 2005).
+Donner & Jensen 2005), with the boundary and source treatment of the
+"improved" diffusion theory (see *Boundary and source* below).
 
 Lengths in mm, coefficients in 1/mm. All functions broadcast over NumPy
 arrays (e.g. texels x bands) and do not mutate their inputs.
 
+Boundary and source
+-------------------
+The paper's dipole (Jensen et al. 2001: source at l = 1/sigma_t',
+D = 1 / (3 sigma_t'), z_b = 2 A D with A = (1 + F_dr) / (1 - F_dr) from
+Egan's fit of F_dr (eq. 12), exitance = Fick's flux -D dphi/dz) is 2-9%
+too bright against adding-doubling for a semi-infinite layer at albedo
+0.95 and eta 1.4-1.5 (+8.8% at eta 1.5). We keep D = 1 / (3 sigma_t') and
+the multipole geometry of eq. 11, and change three things:
+
+* **Fresnel moments.** C_n(eta) = int_0^1 F(mu) mu^n dmu, n = 1, 2, with F
+  the unpolarized Fresnel reflectance of light *inside* the layer
+  (``fresnel_reflectance(mu, 1 / eta)``, integrated numerically once into a
+  table, :func:`fresnel_moments`). 2 C_1 is the exact F_dr; Egan's fit is
+  within 0.1% of it for eta 1.33-1.5.
+* **Boundary condition and exitance** (d'Eon & Irving 2011, "A quantized-
+  diffusion model for rendering translucent materials", sec. 3; d'Eon 2012,
+  "A better dipole"; Frisvad et al. 2014, "Directional dipole model for
+  subsurface scattering", sec. 3; Habel et al. 2013, "Classical and improved
+  diffusion theory for subsurface scattering"). With the P1 radiance
+  L = phi / 4pi + 3 E.w / 4pi at the face, the partial-current condition
+  (light going in = Fresnel-reflected part of light going out) gives
+  z_b = 2 A D with A = (1 + 3 C_2) / (1 - 2 C_1), and the light that leaves
+  through the face (Fresnel-transmitted outgoing radiance) is
+  M = C_phi phi + C_E D dphi/dn, C_phi = (1 - 2 C_1) / 4,
+  C_E = (1 - 3 C_2) / 2 (dphi/dn the derivative into the layer). The
+  dipole/multipole only approximates the boundary condition, so both terms
+  count. Per pole at depth z (strength S), the fluence part of the profile is
+  S e^{-sigma_tr d_z} / (4 pi D d_z) and the flux part is eq. 9's
+  P(sigma_tr, z); their totals are S e^{-sigma_tr |z|} / (2 D sigma_tr) and
+  (S / 2) sgn(z) e^{-sigma_tr |z|} (eq. 42 with alpha'/2).
+* **Source depth** (extended source of d'Eon & Irving 2011 and Habel et al.
+  2013). The first collisions of a normally incident beam are exponentially
+  distributed in depth, density sigma_t' e^{-sigma_t' z}; its totals are
+  those of a point source at depth z_e with e^{-sigma_tr z_e} =
+  int sigma_t' e^{-sigma_t' z} e^{-sigma_tr z} dz = 1 / (1 + u),
+  u = sigma_tr / sigma_t', i.e. z_e = ln(1 + u) / sigma_tr
+  (-> l = 1/sigma_t' for u -> 0; 0.85 l at albedo 0.95). For diffuse
+  incidence the density is 2 sigma_t' E_2(sigma_t' z) and
+  e^{-sigma_tr z_e} = 2 (u - ln(1 + u)) / u^2 (-> 2l/3). We keep one point
+  source (eq. 9-11 form, closed-form profiles) at z_e.
+
+Against adding-doubling (iadpython, 16 quadrature points) a semi-infinite
+layer at albedo 0.95-0.999, eta 1.33-1.5 is then within 1.3% (was up to
++8.8%; Grosjean's D = (2 sigma_a + sigma_s') / (3 sigma_t'^2), the "better
+dipole" diffusion coefficient, changes these figures by < 0.7% and makes
+eta 1.5 slightly worse, so it is not used). :func:`classical_dipole_profile`
+keeps the paper's dipole (it equals ``pmcx.utils.cwfluxdiffusion`` times
+alpha').
+
 Thin slabs
 ----------
-The paper places the real source one mean free path l = 1/sigma_t' deep
-with strength alpha' (eq. 11). For a slab thinner than l that source lies
-*below* the slab and the transmittance goes negative. We keep eq. 11 where
-it is valid and fix the rest with three changes:
+The source would lie *below* a slab thinner than its depth, and the
+transmittance would go negative. We keep the depth where it is valid and
+fix the rest with three changes:
 
-* depth: z_s = min(l, 3 d / 4). Eq. 11 unchanged whenever l <= 3d/4
-  (slabs thicker than 4/3 mfp; the 0.25 mm epidermis is 1.1-3.1 mfp over
-  400-700 nm, so only its red end is affected); thinner slabs get the
-  source inside the slab, at 3/4 of its thickness, so the multipole stays
-  the (positive) Green's function of the diffusion equation with both
-  extrapolated boundaries outside it. (The mean first-collision depth
-  inside the slab matches adding-doubling better for a thin slab in air,
-  but under-predicts the light reaching the dermis: two-layer skin spectra
-  then deviate by up to 0.06 from adding-doubling instead of 0.032.);
+* depth: z_s = min(z_e, 3 d / 4). Unchanged whenever z_e <= 3d/4; thinner
+  slabs get the source inside the slab, at 3/4 of its thickness, so the
+  multipole stays the (positive) Green's function of the diffusion equation
+  with both extrapolated boundaries outside it. (The mean first-collision
+  depth inside the slab matches adding-doubling better for a thin slab in
+  air, but under-predicts the light reaching the dermis.);
 * strength: S = alpha' (1 - e^-tau), tau = sigma_t' d: only the collided
   part of the beam feeds the diffusion source (-> alpha' for thick slabs);
 * the unscattered part e^-tau is added exactly (:func:`ballistic_totals`;
@@ -27,36 +73,34 @@ it is valid and fix the rest with three changes:
   reduces to its two Fresnel faces (T -> 1, R -> 0 when they are matched).
 
 With these, R >= 0, T >= 0 and R + T <= alpha' (1 - e^-tau) + e^-tau <= 1
-for every thickness. Against adding-doubling at albedo >= 0.99 (slab in
-air, eta 1.33-1.5): R within 2% and T within 3% from 4 to 8 mfp, within
-14% (R) and 9% (T) from 0.1 to 2 mfp, where eq. 11 as printed is off by
-up to a factor 4 (see tests/skin/test_skin_multipole.py).
+for every thickness (see tests/skin/test_skin_multipole.py for the
+adding-doubling comparisons).
 
 Diffuse incidence (``incidence="diffuse"``, used for light that the dermis
-sends back up into the epidermis): the mean first-collision depth of a
-Lambertian beam in a half space, 2 l / 3, replaces l, the unscattered
-fraction is 2 E3(tau) and the faces reflect it with F_dr instead of the
-normal-incidence Fresnel reflectance.
+sends back up into the epidermis): the diffuse source depth above, the
+unscattered fraction is 2 E3(tau) and the faces reflect it with the exact
+F_dr = 2 C_1 instead of the normal-incidence Fresnel reflectance.
 
 Totals
 ------
 :func:`slab_totals` sums eq. 42 (with the alpha'/2 factor missing in the
-printed equation, see DESIGN errata) over *all* poles in closed form: the
-image series of the 1-D Green's function is
-R = S/2 (e^{-s z_s} + e^{-s (z_s + 2 z_b0)}) (1 - e^{-2 s b}) / (1 - e^{-2 s L}),
-with b = d + z_bd - z_s, L = d + z_b0 + z_bd, s = sigma_tr (and T likewise);
-:func:`slab_totals_poles` is the literal finite sum of eq. 42. Passing a
-spatial frequency k (1/mm) replaces s by sqrt(sigma_tr^2 + k^2), which gives
-the Hankel transform 2 pi int R(r) J0(k r) r dr of the profiles (used for
-the layer combination of eq. 15).
+printed equation, see DESIGN errata) and the fluence terms over *all* poles
+in closed form. With e_1 = e^{-s z_s}, e_2 = e^{-s (z_s + 2 z_b0)}:
+R = S/2 [C_E (e_1 + e_2) + C_phi (e_1 - e_2) / (D s)] (1 - e^{-2 s b}) / (1 - e^{-2 s L}),
+with b = d + z_bd - z_s, L = d + z_b0 + z_bd, s = sigma_tr, C_E and C_phi of
+the top face (and T likewise with the bottom face);
+:func:`slab_totals_poles` is the literal finite sum over the poles. Passing
+a spatial frequency k (1/mm) replaces s by sqrt(sigma_tr^2 + k^2) (the
+source depth stays z_s), which gives the Hankel transform
+2 pi int R(r) J0(k r) r dr of the profiles (used for the layer combination
+of eq. 15).
 
 Boundaries
 ----------
 ``eta_top`` / ``eta_bottom`` are the *relative* indices (layer / outside)
-at z = 0 and z = d. F_dr follows Egan's fit (eq. 12). Between epidermis and
-dermis both ~1.4 the relative index is 1: Egan gives F_dr(1) = 0.0016, A =
-1.003, z_b = 2.006 D, i.e. an (almost exactly) index-matched boundary; we use
-the fit as is rather than special-casing it.
+at z = 0 and z = d. Between epidermis and dermis, both ~1.4, the relative
+index is 1: C_1 = C_2 = 0, A = 1, C_phi = 1/4, C_E = 1/2 (the exitance is
+then the one-way partial current phi/4 + D dphi/dn / 2).
 """
 
 from __future__ import annotations

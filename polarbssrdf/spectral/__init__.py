@@ -12,11 +12,14 @@ from .bands import (
     default_filters,
     default_light,
     make_band,
+    read_bands,
+    shipped_default_bands,
 )
 from .curves import comb_curve, complementary_curve, gaussian_curve, sample_curve, spectral_distribution, wavelength_grid
 
 __all__ = [
     "Band", "band_average", "band_weights_matrix", "bands_from_json", "bands_to_json", "default_bands",
-    "default_camera_responses", "default_filters", "default_light", "make_band", "comb_curve",
+    "default_camera_responses", "default_filters", "default_light", "make_band", "read_bands",
+    "shipped_default_bands", "comb_curve",
     "complementary_curve", "gaussian_curve", "sample_curve", "spectral_distribution", "wavelength_grid",
 ]

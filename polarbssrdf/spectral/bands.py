@@ -162,3 +162,34 @@ def band_average(spectrum, band: Band) -> np.ndarray:
     else:
         values = sample_curve(spectrum, wl)
     return np.trapezoid(values * w, wl, axis=-1) / np.trapezoid(w, wl)
+
+
+DEFAULT_BANDS_FILE = "default_bands.json"
+"""The default bands as shipped sampled curves (``polarbssrdf/spectral/data``)."""
+
+
+def read_bands(path) -> list[Band]:
+    """Bands from a JSON file written by :func:`bands_to_json`; errors name the file."""
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"band file not found: {path}")
+    try:
+        bands = bands_from_json(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"{path}: not a band file ({error})") from error
+    names = [band.name for band in bands]
+    if not bands or len(set(names)) != len(names):
+        raise ValueError(f"{path}: needs at least one band and unique band names, got {names}")
+    return bands
+
+
+def shipped_default_bands() -> list[Band]:
+    """The 6 default bands read from the JSON file shipped with the package."""
+    from importlib import resources
+
+    with resources.as_file(resources.files("polarbssrdf.spectral") / "data" / DEFAULT_BANDS_FILE) as path:
+        return read_bands(path)

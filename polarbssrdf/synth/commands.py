@@ -25,6 +25,9 @@ def register(subparsers) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--params", type=Path,
                         help="JSON file with truth settings (see polarbssrdf.synth.truth)")
+    parser.add_argument("--bands", type=Path,
+                        help="band curves (JSON, see polarbssrdf.spectral.read_bands); "
+                             "default: the 6 bands shipped in polarbssrdf/spectral/data")
     parser.add_argument("--raw", action="store_true",
                         help="write noisy 12-bit polarization-sensor mosaics instead of I0..I135")
     parser.add_argument("--overwrite", action="store_true",
@@ -42,6 +45,7 @@ def run(args) -> int:
 
     import polarbssrdf
     from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
+    from polarbssrdf.spectral import read_bands, shipped_default_bands
     from polarbssrdf.synth.truth import load_settings
 
     if args.variant not in mi.variants() or not args.variant.endswith("mono_polarized"):
@@ -54,9 +58,10 @@ def run(args) -> int:
                                  resolution=args.resolution, texture=args.texture, spp=args.spp,
                                  seed=args.seed, raw=args.raw)
     truth_settings = load_settings(args.params) if args.params else None
+    bands = read_bands(args.bands) if args.bands else shipped_default_bands()
     start = time.perf_counter()
     try:
-        manifest = synthesize(args.outdir, settings, truth_settings=truth_settings,
+        manifest = synthesize(args.outdir, settings, bands=bands, truth_settings=truth_settings,
                               overwrite=args.overwrite, resume=args.resume,
                               progress=not args.quiet)
     except FileExistsError as error:

@@ -77,3 +77,42 @@ def test_mismatched_inputs_are_rejected():
         blur_sum_of_gaussians(np.zeros((T, T)), [1.0], [0.0], sizes, valid)
     with pytest.raises(ValueError, match="share"):
         blur_sum_of_gaussians(np.zeros((T, 4)), [1.0], [0.1], sizes, valid)
+
+
+def skin_profile_kernel(band=3):
+    """Normalized SoG of the two-layer reflectance profile of a Table 2 skin (eq. 43)."""
+    from polarbssrdf.skin import TABLE2, fit_sog, normalized_weights, two_layer_profile, variance_ladder
+    from polarbssrdf.skin.layers import absorption_from_basis
+    from polarbssrdf.skin.model import band_chromophore_basis
+    from polarbssrdf.spectral import default_bands
+
+    basis = band_chromophore_basis(default_bands())
+    p = TABLE2[("cheek", "II")]
+    sa_out, sa_in = absorption_from_basis(basis, p.C_m, p.beta_m, p.C_h_out, p.C_h_in)
+    r = np.concatenate([[0.0], np.geomspace(1e-4, 30.0, 300)])
+    profile = two_layer_profile(r, sa_out[band], basis["scattering_epidermis"][band], sa_in[band],
+                                basis["scattering_dermis"][band], p.thickness_mm, p.eta)
+    variances = variance_ladder()
+    return normalized_weights(fit_sog(r, profile, variances)), variances
+
+
+@pytest.mark.parametrize("band", [0, 5])
+def test_a_thin_line_spreads_with_the_skin_profile_width_and_keeps_its_energy(band):
+    """The line spread of a radial profile has variance sum_j w_j v_j (1-D marginals)."""
+    weights, variances = skin_profile_kernel(band)
+    size = 320
+    texel_u, texel_v = 0.06, 0.09  # mm; anisotropic on purpose
+    sizes = np.empty((size, size, 2))
+    sizes[..., 0], sizes[..., 1] = texel_u, texel_v
+    valid = np.ones((size, size), bool)
+    line = np.zeros((size, size), np.float32)
+    line[:, size // 2] = 1.0  # a line along v, one texel wide
+    out = blur_sum_of_gaussians(line, weights, variances, sizes, valid, negligible_weight=0.0)
+    profile = out[size // 2]
+    x = (np.arange(size) - size // 2) * texel_u
+    measured = np.sqrt(np.sum(profile * x**2) / np.sum(profile))
+    expected = np.sqrt(np.sum(weights * variances) / np.sum(weights) + texel_u**2 / 12)
+    assert measured == pytest.approx(expected, rel=0.10)
+    assert 0.05 < expected < 3.0  # mm: a real, resolved skin profile
+    # energy along the row (the line spans every row): conserved away from the borders
+    assert profile.sum() == pytest.approx(1.0, rel=0.01)

@@ -9,6 +9,7 @@ from polarbssrdf.geometry import texel_atlas, to_mitsuba, uv_sphere
 from polarbssrdf.render.subsurface import diffused_exitance, transmitted_irradiance
 
 ETA, RHO_SSS = 1.45, 0.6
+TEXTURE = 1024
 LIGHT = {"type": "ppoint", "position": [180.0, 120.0, 420.0], "intensity": 4e5,
          "polarization_axis": [1.0, 0.2, 0.0]}
 
@@ -35,7 +36,7 @@ def renders():
     glossy = {"type": "pbssrdf", "eta": ETA, "alpha_s": 0.3, "rho_ss": 0.2, "rho_sss": 0.0}
     local = dict(glossy, rho_sss=RHO_SSS)
     reference_scene = scene(mesh, local)
-    atlas = texel_atlas(to_mitsuba(mesh), 512)
+    atlas = texel_atlas(to_mitsuba(mesh), TEXTURE)
     irradiance = transmitted_irradiance(reference_scene, atlas, ETA)
     exitance = diffused_exitance(irradiance, RHO_SSS, atlas)
     emitter = {"type": "pexitance", "eta": ETA,
@@ -51,11 +52,12 @@ def test_zero_blur_reproduces_the_local_subsurface_lobe(renders):
     S0 = reference[..., 0]
     lit = S0 > 0.05 * S0.max()
     assert lit.sum() > 1500
-    # what remains is bilinear interpolation of the 512^2 irradiance map
-    # (measured: median 2e-5, 98th percentile 7e-4 of S0)
+    # Within 1e-3 relative: the whole image and 99% of the lit pixels. What
+    # remains is bilinear interpolation of the irradiance map, largest where a
+    # pixel straddles the shadow terminator of the 1024^2 map.
     relative = np.abs(texture_space[..., 0] - S0)[lit] / S0[lit]
-    assert np.median(relative) < 2e-4
-    assert np.percentile(relative, 98) < 5e-3
+    assert abs(texture_space[..., 0][lit].sum() / S0[lit].sum() - 1) < 1e-3
+    assert np.percentile(relative, 99) < 1e-3
     # polarization: the exit factor is the same, S1 and S2 agree relative to S0
     for k in (1, 2):
         error = np.abs(texture_space[..., k] - reference[..., k])[lit] / S0[lit]

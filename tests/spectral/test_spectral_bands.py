@@ -96,3 +96,22 @@ def test_json_round_trip_and_validation():
         Band.from_dict({"name": "x"})
     with pytest.raises(ValueError, match=">= 0"):
         Band("neg", np.array([400.0, 500.0]), np.array([1.0, -1.0]))
+
+
+def test_shipped_default_band_file_is_the_default_bands(tmp_path):
+    from polarbssrdf.spectral import read_bands, shipped_default_bands
+
+    shipped = shipped_default_bands()
+    generated = default_bands()
+    assert [b.name for b in shipped] == [b.name for b in generated]
+    for a, b in zip(shipped, generated):
+        np.testing.assert_allclose(a.wavelengths_nm, b.wavelengths_nm)
+        np.testing.assert_allclose(a.weights, b.weights, rtol=1e-12)
+    with pytest.raises(FileNotFoundError, match="missing.json"):
+        read_bands(tmp_path / "missing.json")
+    (tmp_path / "bad.json").write_text("{oops")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        read_bands(tmp_path / "bad.json")
+    (tmp_path / "empty.json").write_text('{"schema_version": 1, "bands": []}')
+    with pytest.raises(ValueError, match="at least one band"):
+        read_bands(tmp_path / "empty.json")

@@ -36,6 +36,16 @@ def test_synthesized_capture_loads_with_truth(tmp_path):
     np.testing.assert_array_equal(second["C_m"], first["C_m"])
 
 
+def test_custom_band_file(tmp_path):
+    from polarbssrdf.spectral import bands_to_json, default_bands
+
+    bands = tmp_path / "bands.json"
+    bands.write_text(bands_to_json(default_bands()[1:3]))
+    assert main(["synth", str(tmp_path / "cap"), "--object", "sphere", "--bands", str(bands),
+                 *SMALL]) == 0
+    assert list(load_capture(tmp_path / "cap").manifest.band_names) == [b.name for b in default_bands()[1:3]]
+
+
 def test_refuses_a_non_empty_directory(tmp_path, capsys):
     (tmp_path / "notes.txt").write_text("keep me")
     assert main(["synth", str(tmp_path), "--object", "sphere", *SMALL]) == 2
