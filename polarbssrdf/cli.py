@@ -16,6 +16,7 @@ COMMAND_MODULES = (
     "polarbssrdf.render.commands",
     "polarbssrdf.skin.commands",
     "polarbssrdf.synth.commands",
+    "polarbssrdf.calibration.commands",
 )
 
 
@@ -41,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.run(args) or 0)
-    except (CommandError, FileNotFoundError, ValueError) as error:
+    except (CommandError, FileNotFoundError, FileExistsError, ValueError) as error:
         print(f"polarbssrdf {args.command}: error: {error}", file=sys.stderr)
         return 2
 

@@ -4,10 +4,18 @@ OpenCV 4.x returns corners as ``(N, 1, 2)`` and ids as ``(N, 1)``; 5.x as
 ``(N, 2)`` and ``(N,)``. Everything here is normalized to ``(N, 2)`` float64
 pixels (OpenCV convention: pixel centres at integer coordinates) and ``(N,)``
 int32 corner ids.
+
+OpenCV releases before the fix of opencv/opencv issue 25539 (pull request
+28380, January 2026; e.g. 4.10) return ChArUco corners shifted by +0.5 px in
+x and y (a half-pixel shift around ``cornerSubPix``). Rather than trusting
+version numbers, :func:`detector_pixel_offset` measures the installed
+detector once on a synthetic board whose corners are known exactly, and
+:func:`detect_charuco` subtracts that offset.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,7 +23,8 @@ import numpy as np
 
 from .board import BoardSpec, _cv2
 
-__all__ = ["IMAGE_SUFFIXES", "MIN_CORNERS", "Detection", "detect_charuco", "read_gray_image"]
+__all__ = ["IMAGE_SUFFIXES", "MIN_CORNERS", "Detection", "detect_charuco", "detector_pixel_offset",
+           "read_gray_image"]
 
 MIN_CORNERS = 8
 """Fewest ChArUco corners a view needs to be used (non-collinear)."""
@@ -33,7 +42,8 @@ class Detection:
     ids:
         ``(N,)`` corner ids (index into :meth:`BoardSpec.corner_points_mm`).
     corners_px:
-        ``(N, 2)`` sub-pixel positions ``(u, v)``, OpenCV pixel centres.
+        ``(N, 2)`` sub-pixel positions ``(u, v)``, OpenCV pixel centres (corrected for
+        :func:`detector_pixel_offset`).
     image_size:
         ``(width, height)`` of the image.
     """
@@ -43,8 +53,13 @@ class Detection:
     image_size: tuple[int, int]
 
     def object_points(self, board: BoardSpec) -> np.ndarray:
-        """``(N, 3)`` board-frame points (mm) matching :attr:`corners_px`."""
-        return board.corner_points_mm()[self.ids]
+        """``(N, 3)`` board-frame points (mm) matching :attr:`corners_px` (``matchImagePoints``)."""
+        objects, _ = board.cv_board().matchImagePoints(
+            self.corners_px.reshape(-1, 1, 2).astype(np.float32), self.ids.reshape(-1, 1))
+        objects = np.asarray(objects, dtype=np.float64).reshape(-1, 3)
+        if len(objects) != len(self.ids):
+            raise ValueError(f"corner ids {self.ids.tolist()} do not all belong to the board")
+        return objects
 
 
 def _to_uint8_gray(image: np.ndarray) -> np.ndarray:
@@ -91,6 +106,30 @@ def read_gray_image(path) -> np.ndarray:
     return _to_uint8_gray(image)
 
 
+@functools.lru_cache(maxsize=1)
+def detector_pixel_offset() -> float:
+    """Systematic shift (px, same in x and y) of the installed OpenCV's ChArUco corners.
+
+    Detects the corners of a flat 5 x 4 board image (20 px squares, known corner
+    positions ``20 k - 0.5`` in OpenCV pixel-centre coordinates, plus the margin)
+    and returns their mean offset rounded to a multiple of 0.5 px: 0 for a correct
+    detector, 0.5 for releases with opencv/opencv issue 25539.
+    """
+    cv2 = _cv2()
+    board = BoardSpec(5, 4, 20.0, 14.0, "DICT_4X4_50")
+    margin = 10
+    image = np.pad(board.cv_board().generateImage((100, 80), marginSize=0, borderBits=1), margin,
+                   constant_values=255)
+    corners, ids, _, _ = cv2.aruco.CharucoDetector(board.cv_board()).detectBoard(image)
+    if corners is None or ids is None or len(ids) < 4:
+        raise RuntimeError(f"OpenCV {cv2.__version__}: cannot detect a synthetic ChArUco board; "
+                           "the aruco module does not work as expected")
+    ids = np.asarray(ids).reshape(-1)
+    corners = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    expected = board.corner_points_mm()[ids, :2] - 0.5 + margin
+    return float(np.round(2.0 * np.mean(corners - expected)) / 2.0)
+
+
 def detect_charuco(image: np.ndarray, board: BoardSpec, *, min_corners: int = MIN_CORNERS
                    ) -> Detection | None:
     """Detect the ChArUco corners of ``board`` in ``image``.
@@ -117,7 +156,7 @@ def detect_charuco(image: np.ndarray, board: BoardSpec, *, min_corners: int = MI
     if corners is None or ids is None or len(ids) < min_corners:
         return None
     ids = np.asarray(ids, dtype=np.int32).reshape(-1)
-    corners = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    corners = np.asarray(corners, dtype=np.float64).reshape(-1, 2) - detector_pixel_offset()
     if cv_board.checkCharucoCornersCollinear(ids.reshape(-1, 1)):
         return None
     order = np.argsort(ids)

@@ -1,0 +1,92 @@
+"""Small CSV tables for the calibration commands (header row, ``#`` comment lines).
+
+Every error names the file and line.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["read_labelled_table", "read_spectra_table"]
+
+
+def _rows(path: Path):
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    with open(path, encoding="utf-8") as handle:
+        for number, raw in enumerate(handle, start=1):
+            line = raw.strip()
+            if line and not line.startswith("#"):
+                yield number, [field.strip() for field in line.split(",")]
+
+
+def _numbers(path, number, fields):
+    try:
+        values = [float(field) for field in fields]
+    except ValueError:
+        raise ValueError(f"{path}: line {number}: not a number in {','.join(fields)!r}") from None
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{path}: line {number}: values must be finite")
+    return values
+
+
+def read_spectra_table(path, required: tuple[str, ...] | None = None
+                       ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """``wavelength_nm,<name>,...`` -> (wavelengths (nm), ``{name: values}``).
+
+    ``required``: column names that must be present (others are allowed).
+    Wavelengths must increase strictly.
+    """
+    path = Path(path)
+    header, table = None, []
+    for number, fields in _rows(path):
+        if header is None:
+            if fields[0].lower() != "wavelength_nm" or len(fields) < 2:
+                raise ValueError(f"{path}: line {number}: header must be 'wavelength_nm,<column>,...', "
+                                 f"got {','.join(fields)!r}")
+            header = fields[1:]
+            if len(set(header)) != len(header) or any(not name for name in header):
+                raise ValueError(f"{path}: line {number}: column names must be unique and non-empty")
+            missing = [name for name in (required or ()) if name not in header]
+            if missing:
+                raise ValueError(f"{path}: missing column(s) {', '.join(missing)} "
+                                 f"(header: {','.join(fields)})")
+            continue
+        if len(fields) != len(header) + 1:
+            raise ValueError(f"{path}: line {number}: expected {len(header) + 1} fields, got {len(fields)}")
+        values = _numbers(path, number, fields)
+        if table and values[0] <= table[-1][0]:
+            raise ValueError(f"{path}: line {number}: wavelengths must increase strictly")
+        table.append(values)
+    if header is None:
+        raise ValueError(f"{path}: empty file (expected header 'wavelength_nm,...')")
+    if len(table) < 3:
+        raise ValueError(f"{path}: needs at least 3 wavelength rows, got {len(table)}")
+    array = np.asarray(table)
+    return array[:, 0], {name: array[:, i + 1] for i, name in enumerate(header)}
+
+
+def read_labelled_table(path, label: str) -> tuple[list[str], list[str], np.ndarray]:
+    """``<label>,<column>,...`` rows of a label and numbers -> (labels, columns, values (N, C))."""
+    path = Path(path)
+    header, labels, table = None, [], []
+    for number, fields in _rows(path):
+        if header is None:
+            if fields[0].lower() != label or len(fields) < 2:
+                raise ValueError(f"{path}: line {number}: header must be '{label},<column>,...', "
+                                 f"got {','.join(fields)!r}")
+            header = fields[1:]
+            continue
+        if len(fields) != len(header) + 1:
+            raise ValueError(f"{path}: line {number}: expected {len(header) + 1} fields, got {len(fields)}")
+        if fields[0] in labels:
+            raise ValueError(f"{path}: line {number}: duplicate {label} {fields[0]!r}")
+        labels.append(fields[0])
+        table.append(_numbers(path, number, fields[1:]))
+    if header is None:
+        raise ValueError(f"{path}: empty file (expected header '{label},...')")
+    if not table:
+        raise ValueError(f"{path}: no data lines")
+    return labels, header, np.asarray(table)
