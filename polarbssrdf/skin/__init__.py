@@ -22,6 +22,7 @@ from .inversion import InversionResult, fit_spectrum, invert_bands, invert_spect
 from .layers import dermis_absorption, epidermis_absorption
 from .model import band_reflectance, reflectance_spectra, skin_reflectance_spectrum
 from .multipole import (
+    classical_dipole_profile,
     diffuse_fresnel_reflectance,
     dipole_profile,
     slab_profiles,
@@ -39,7 +40,8 @@ __all__ = [
     "epidermis_reduced_scattering", "eumelanin_absorption", "hemoglobin_wavelength_range",
     "oxyhemoglobin_absorption", "pheomelanin_absorption", "read_extinction_csv", "InversionResult",
     "fit_spectrum", "invert_bands", "invert_spectra", "dermis_absorption", "epidermis_absorption",
-    "band_reflectance", "reflectance_spectra", "skin_reflectance_spectrum", "diffuse_fresnel_reflectance",
+    "band_reflectance", "reflectance_spectra", "skin_reflectance_spectrum", "classical_dipole_profile",
+    "diffuse_fresnel_reflectance",
     "dipole_profile", "slab_profiles", "slab_reflectance_transmittance", "slab_totals", "slab_totals_poles",
     "TABLE2", "SkinParameters", "table2_ranges", "read_reflectance_csv", "discrete_kernel", "fit_sog",
     "normalized_weights", "sog_profile", "sog_relative_error", "variance_ladder", "LayerTotals", "layer_totals",

@@ -14,6 +14,8 @@ from .parameters import SkinParameters
 from .twolayer import boundary_terms, two_layer_total_kernel
 
 DEFAULT_GAMMA = 0.75
+#: Values per array in the chunked kernels (float64: 96 KiB, under the mmap threshold).
+CHUNK_VALUES = 12288
 DEFAULT_THICKNESS_MM = 0.25
 
 
@@ -36,12 +38,15 @@ def check_parameter_arrays(C_m, beta_m, C_h_out, C_h_in, thickness_mm=DEFAULT_TH
 
 
 def reflectance_from_basis(basis, C_m, beta_m, C_h_out, C_h_in, thickness_mm=DEFAULT_THICKNESS_MM,
-                           eta=DEFAULT_REFRACTIVE_INDEX, dtype=np.float64, chunk_texels=8192, workers=2):
+                           eta=DEFAULT_REFRACTIVE_INDEX, dtype=np.float64, chunk_texels=None, workers=2):
     """Total diffuse reflectance (eq. 47, unitless) for chromophore spectra
     (or band averages) ``basis`` of :func:`~.layers.chromophore_basis`.
     Output shape: broadcast(parameters, thickness, eta) + (n_samples,).
 
-    Texels are processed in cache-sized chunks on ``workers`` threads; each
+    Texels are processed in cache-sized chunks on ``workers`` threads (by
+    default about 12,000 values per array, below glibc's 128 KiB mmap
+    threshold: larger temporaries are page-faulted afresh on every NumPy
+    operation and make the kernel 2-3x slower); each
     chunk is :func:`~.layers.absorption_from_basis` followed by
     :func:`~.twolayer.two_layer_total_kernel` (pure array functions)."""
     from concurrent.futures import ThreadPoolExecutor
@@ -52,16 +57,25 @@ def reflectance_from_basis(basis, C_m, beta_m, C_h_out, C_h_in, thickness_mm=DEF
     flat = [np.ravel(x) for x in params]
     n = flat[0].size
     n_samples = np.asarray(basis["eumelanin"]).shape[-1]
+    if chunk_texels is None:
+        chunk_texels = max(64, CHUNK_VALUES // n_samples)
     out = np.empty((n, n_samples), dtype=dtype)
     sc_out = np.asarray(basis["scattering_epidermis"], dtype=dtype)
     sc_in = np.asarray(basis["scattering_dermis"], dtype=dtype)
     small = {k: np.asarray(v, dtype=dtype) for k, v in basis.items()}
 
+    uniform_eta = bool(np.all(flat[5] == flat[5][0]))
+    if uniform_eta:  # the usual case: boundary constants once, as scalars
+        uniform_terms = {k: dtype(v) for k, v in boundary_terms(float(flat[5][0])).items()}
+
     def run(start):
         stop = min(start + chunk_texels, n)
         cm, bm, cho, chi, d, e = (x[start:stop].astype(dtype) for x in flat)
         sa_out, sa_in = absorption_from_basis(small, cm, bm, cho, chi)
-        terms = {k: np.asarray(v, dtype=dtype) for k, v in boundary_terms(e[:, None]).items()}  # eta_in = eta_out
+        if uniform_eta:
+            terms = uniform_terms
+        else:  # eta_in = eta_out
+            terms = {k: np.asarray(v, dtype=dtype) for k, v in boundary_terms(e[:, None]).items()}
         out[start:stop] = two_layer_total_kernel(sa_out, sc_out, sa_in, sc_in, d[:, None], terms)
 
     starts = range(0, n, chunk_texels)

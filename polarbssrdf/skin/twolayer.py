@@ -123,17 +123,29 @@ def radial_energy(r, profile):
 
 def boundary_terms(eta_out, eta_in=None) -> dict:
     """Boundary constants of the two-layer model for :func:`two_layer_total_kernel`:
-    A (eq. 11 text), normal-incidence Fresnel and F_dr (eq. 12) of the air /
-    epidermis face and of both sides of the epidermis / dermis face."""
-    from .multipole import diffuse_fresnel_reflectance, internal_reflection_parameter, normal_fresnel_reflectance
+    A and the exitance coefficients (C_phi, C_E) of the air / epidermis face
+    and of both sides of the epidermis / dermis face (exact Fresnel moments,
+    see :mod:`.multipole`), normal-incidence Fresnel and F_dr = 2 C_1."""
+    from .multipole import (
+        diffuse_fresnel_reflectance,
+        exitance_coefficients,
+        internal_reflection_parameter,
+        normal_fresnel_reflectance,
+    )
 
     eta_out = np.asarray(eta_out, dtype=float)
     eta_in = eta_out if eta_in is None else np.asarray(eta_in, dtype=float)
     inner = eta_out / eta_in
+    cphi_top, ce_top = exitance_coefficients(eta_out)
+    cphi_inner, ce_inner = exitance_coefficients(inner)
+    cphi_dermis, ce_dermis = exitance_coefficients(1.0 / inner)
     return {
         "A_top": internal_reflection_parameter(eta_out),
         "A_inner": internal_reflection_parameter(inner),
         "A_dermis": internal_reflection_parameter(1.0 / inner),
+        "Cphi_top": cphi_top, "CE_top": ce_top,
+        "Cphi_inner": cphi_inner, "CE_inner": ce_inner,
+        "Cphi_dermis": cphi_dermis, "CE_dermis": ce_dermis,
         "Rn_top": normal_fresnel_reflectance(eta_out),
         "Rn_inner": normal_fresnel_reflectance(inner),
         "F_top": diffuse_fresnel_reflectance(eta_out),
@@ -141,40 +153,70 @@ def boundary_terms(eta_out, eta_in=None) -> dict:
     }
 
 
-def _slab_pair(strength, z_s, s, d, zb_in, zb_out):
-    """Closed-form multipole (R, T) for a source at z_s with extrapolation
-    distances zb_in (entry face) and zb_out (exit face); see multipole.slab_totals."""
+def _face(near, s, D, zb, c_phi, c_e):
+    """C_E (e^{-s z} + e^{-s (z + 2 z_b)}) + C_phi (e^{-s z} - e^{-s (z + 2 z_b)}) / (D s)."""
+    e1 = np.exp(-s * near)
+    g = -np.expm1(-2.0 * s * zb)
+    return e1 * (c_e * (2.0 - g) + c_phi * g / (D * s))
+
+
+def _slab_pair(strength, z_s, z_t, s, D, d, zb_in, zb_out, c_in, c_out):
+    """Closed-form multipole (R, T) for a source at z_s (z_t for the exit face) with extrapolation
+    distances zb_in (entry face) and zb_out (exit face) and the exitance
+    coefficients c_in / c_out = (C_phi, C_E) of the faces, with the energy
+    guard; see multipole.slab_totals."""
     length = d + zb_in + zb_out
     den = -np.expm1(-2.0 * s * length)
     half = 0.5 * strength / den
-    refl = half * (np.exp(-s * z_s) + np.exp(-s * (z_s + 2.0 * zb_in))) * -np.expm1(-2.0 * s * (length - z_s - zb_in))
-    below = d - z_s
-    trans = half * (np.exp(-s * below) + np.exp(-s * (below + 2.0 * zb_out))) * -np.expm1(-2.0 * s * (z_s + zb_in))
-    return refl, trans
+    refl = half * _face(z_s, s, D, zb_in, *c_in) * -np.expm1(-2.0 * s * (length - z_s - zb_in))
+    trans = half * _face(d - z_t, s, D, zb_out, *c_out) * -np.expm1(-2.0 * s * (z_t + zb_in))
+    total = refl + trans
+    guard = np.where(total > strength, strength / np.where(total > 0, total, 1.0), 1.0)  # multipole.energy_guard
+    return guard * refl, guard * trans
+
+
+def _source_depths(rate, s, d, inv_s):
+    """(z_R, z_T) of multipole.collimated_source_depths for a finite d and s > 0
+    (the general-case branches left out; keeps the dtype)."""
+    collided = -np.expm1(-rate * d)
+    z_r = np.log((1.0 + s / rate) * collided / -np.expm1(-(rate + s) * d)) * inv_s
+    wd = (rate - s) * d
+    spread = np.where(np.abs(wd) > 1e-12, -np.expm1(-wd) / np.where(wd == 0, 1.0, rate - s), d)
+    z_t = np.log(rate * spread / collided) * inv_s
+    return z_r, z_t
 
 
 def epidermis_totals_kernel(sigma_a_out, sigma_s_out, thickness_mm, b):
     """(R_out_f, T_out_f, R_out_b, T_out_b) of :func:`layer_totals` at k = 0,
-    sub-expressions shared; pure array math. ``b`` is :func:`boundary_terms`."""
+    sub-expressions shared; pure array math for sigma_a > 0 and a finite
+    thickness (keeps the dtype). ``b`` is :func:`boundary_terms`. The source
+    depths are those of :mod:`.multipole` (per face, truncated extended
+    source; collimated from the air, diffuse from the dermis)."""
+    from .multipole import DIFFUSE_RATE
+
     d = thickness_mm
     st = sigma_a_out + sigma_s_out
     albedo = sigma_s_out / st
     s = np.sqrt(3.0 * sigma_a_out * st)
+    inv_s = 1.0 / s
     tau = st * d
-    two_d = 2.0 / (3.0 * st)
-    zb_top = b["A_top"] * two_d
-    zb_inner = b["A_inner"] * two_d
-    # forward: collimated from the air
-    u_f = np.exp(-tau)
-    z_f = np.minimum(1.0 / st, 0.75 * d)
-    R_f, T_f = _slab_pair(albedo * (1.0 - u_f), z_f, s, d, zb_top, zb_inner)
-    bounce = 1.0 / (1.0 - b["Rn_top"] * b["Rn_inner"] * u_f * u_f)
-    R_f = R_f + u_f * u_f * b["Rn_inner"] * (1.0 - b["Rn_top"]) * bounce
-    T_f = T_f + u_f * (1.0 - b["Rn_inner"]) * bounce
-    # backward: diffuse from the dermis
-    u_b = diffuse_unscattered_fraction(tau)
-    z_b = np.minimum(2.0 / (3.0 * st), 0.75 * d)
-    R_b, T_b = _slab_pair(albedo * (1.0 - u_b), z_b, s, d, zb_inner, zb_top)
+    D = 1.0 / (3.0 * st)
+    zb_top = 2.0 * b["A_top"] * D
+    zb_inner = 2.0 * b["A_inner"] * D
+    c_top = (b["Cphi_top"], b["CE_top"])
+    c_inner = (b["Cphi_inner"], b["CE_inner"])
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        # forward: collimated from the air
+        u_f = np.exp(-tau)
+        z_f, zt_f = _source_depths(st, s, d, inv_s)
+        R_f, T_f = _slab_pair(albedo * (1.0 - u_f), z_f, zt_f, s, D, d, zb_top, zb_inner, c_top, c_inner)
+        bounce = 1.0 / (1.0 - b["Rn_top"] * b["Rn_inner"] * u_f * u_f)
+        R_f = R_f + u_f * u_f * b["Rn_inner"] * (1.0 - b["Rn_top"]) * bounce
+        T_f = T_f + u_f * (1.0 - b["Rn_inner"]) * bounce
+        # backward: diffuse from the dermis
+        u_b = diffuse_unscattered_fraction(tau)
+        z_b, zt_b = _source_depths(DIFFUSE_RATE * st, s, d, inv_s)
+        R_b, T_b = _slab_pair(albedo * (1.0 - u_b), z_b, zt_b, s, D, d, zb_inner, zb_top, c_inner, c_top)
     bounce = 1.0 / (1.0 - b["F_top"] * b["F_inner"] * u_b * u_b)
     R_b = R_b + u_b * u_b * b["F_top"] * (1.0 - b["F_inner"]) * bounce
     T_b = T_b + u_b * (1.0 - b["F_top"]) * bounce
@@ -182,11 +224,15 @@ def epidermis_totals_kernel(sigma_a_out, sigma_s_out, thickness_mm, b):
 
 
 def dermis_reflectance_kernel(sigma_a_in, sigma_s_in, b):
-    """R_in of :func:`layer_totals` at k = 0: semi-infinite dipole, source at
-    1/sigma_t', strength alpha' (eq. 9, 42 with alpha'/2)."""
+    """R_in of :func:`layer_totals` at k = 0: semi-infinite dipole with the
+    extended-source depth, e^{-s z_e} = sigma_t' / (sigma_t' + s), and the
+    fluence + flux exitance (:mod:`.multipole`)."""
     st_in = sigma_a_in + sigma_s_in
     s_in = np.sqrt(3.0 * sigma_a_in * st_in)
-    return 0.5 * sigma_s_in / st_in * np.exp(-s_in / st_in) * (1.0 + np.exp(-s_in * (4.0 * b["A_dermis"] / (3.0 * st_in))))
+    D = 1.0 / (3.0 * st_in)
+    g = -np.expm1(-2.0 * s_in * (2.0 * b["A_dermis"] * D))
+    face = b["CE_dermis"] * (2.0 - g) + b["Cphi_dermis"] * g / (D * s_in)
+    return 0.5 * sigma_s_in / (st_in + s_in) * face
 
 
 def two_layer_total_kernel(sigma_a_out, sigma_s_out, sigma_a_in, sigma_s_in, thickness_mm, b):

@@ -82,3 +82,22 @@ def test_shapes_inputs_and_errors():
     fitted = fit_spectrum(WL, spectra[0, 0])
     assert set(fitted) == set(PARAMETER_NAMES) | {"rmse"}
     assert fitted["C_m"] == pytest.approx(truth["C_m"][0], rel=1e-3)
+
+
+@pytest.mark.parametrize("samples", ["bands", "spectra"])
+def test_tabulated_model_of_the_lm_steps_matches_the_exact_model(samples):
+    from polarbssrdf.skin.inversion import _MODELS, _model_key
+    from polarbssrdf.skin.layers import chromophore_basis
+    from polarbssrdf.skin.model import band_chromophore_basis
+
+    basis = band_chromophore_basis(default_bands()) if samples == "bands" else chromophore_basis(WL)
+    model = _MODELS[_model_key(basis, 0.75, 0.25, 1.4)]
+    rng = np.random.default_rng(5)
+    lo = np.array([BOUNDS[n][0] for n in PARAMETER_NAMES])
+    hi = np.array([BOUNDS[n][1] for n in PARAMETER_NAMES])
+    p = lo + (hi - lo) * rng.uniform(size=(3000, 4))
+    value, jac = model.value_and_jacobian(p)
+    np.testing.assert_allclose(value, model(p), atol=2e-8)  # interpolation error << any noise
+    fd = model.finite_difference_jacobian(p[:300])
+    scale = np.abs(fd).max(axis=(0, 1))
+    assert np.all(np.abs(jac[:300] - fd).max(axis=(0, 1)) < 1e-3 * scale)
