@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from polarbssrdf.spectral.curves import read_spectra_csv
+
 __all__ = ["read_labelled_table", "read_spectra_table"]
 
 
@@ -34,38 +36,12 @@ def _numbers(path, number, fields):
 
 def read_spectra_table(path, required: tuple[str, ...] | None = None
                        ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """``wavelength_nm,<name>,...`` -> (wavelengths (nm), ``{name: values}``).
+    """``wavelength_nm,<name>,...`` -> (wavelengths (nm), ``{name: values}``), at least 3 rows.
 
     ``required``: column names that must be present (others are allowed).
-    Wavelengths must increase strictly.
+    The parsing and its checks are :func:`polarbssrdf.spectral.curves.read_spectra_csv`.
     """
-    path = Path(path)
-    header, table = None, []
-    for number, fields in _rows(path):
-        if header is None:
-            if fields[0].lower() != "wavelength_nm" or len(fields) < 2:
-                raise ValueError(f"{path}: line {number}: header must be 'wavelength_nm,<column>,...', "
-                                 f"got {','.join(fields)!r}")
-            header = fields[1:]
-            if len(set(header)) != len(header) or any(not name for name in header):
-                raise ValueError(f"{path}: line {number}: column names must be unique and non-empty")
-            missing = [name for name in (required or ()) if name not in header]
-            if missing:
-                raise ValueError(f"{path}: missing column(s) {', '.join(missing)} "
-                                 f"(header: {','.join(fields)})")
-            continue
-        if len(fields) != len(header) + 1:
-            raise ValueError(f"{path}: line {number}: expected {len(header) + 1} fields, got {len(fields)}")
-        values = _numbers(path, number, fields)
-        if table and values[0] <= table[-1][0]:
-            raise ValueError(f"{path}: line {number}: wavelengths must increase strictly")
-        table.append(values)
-    if header is None:
-        raise ValueError(f"{path}: empty file (expected header 'wavelength_nm,...')")
-    if len(table) < 3:
-        raise ValueError(f"{path}: needs at least 3 wavelength rows, got {len(table)}")
-    array = np.asarray(table)
-    return array[:, 0], {name: array[:, i + 1] for i, name in enumerate(header)}
+    return read_spectra_csv(path, required=tuple(required or ()), min_rows=3)
 
 
 def read_labelled_table(path, label: str) -> tuple[list[str], list[str], np.ndarray]:

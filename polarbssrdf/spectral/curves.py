@@ -69,42 +69,37 @@ def complementary_curve(curve, low: float = 0.02, high: float = 0.95):
     return lambda wl: low + high - curve(wl)
 
 
-def read_curve_csv(path, columns, check_row=None):
-    """Read a CSV of tabulated curves: header ``wavelength_nm,<columns...>``, one row per wavelength.
+def read_spectra_csv(path, required=(), exact=None, check_row=None, min_rows=1):
+    """Read a table of spectra: header ``wavelength_nm,<name>,...``, one row per wavelength.
 
-    ``#`` lines are comments (provenance). Checks, each error naming the
-    file and line: the exact header, the field count, numbers, finite
-    values, strictly increasing wavelengths, at least one data row, and
-    ``check_row(values)`` if given (returns an error message or None; values
-    exclude the wavelength).
+    ``#`` lines are comments (provenance). Every error names the file and,
+    where it applies, the line: header (unique, non-empty names; exactly
+    ``exact`` if given; containing ``required``), field count, numbers,
+    finite values, strictly increasing wavelengths, ``check_row(values)``
+    (an error message or None, for the values after the wavelength), and at
+    least ``min_rows`` data rows.
 
     Returns
     -------
-    (wavelength_nm, values)
-        1-D array (nm) and an array (rows, len(columns)).
+    (wavelength_nm, {name: values})
     """
     from pathlib import Path
 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
-    expected = ["wavelength_nm", *columns]
-    rows = []
-    header_seen = False
+    names, rows = None, []
     with open(path, encoding="utf-8") as handle:
         for number, raw in enumerate(handle, start=1):
             line = raw.strip()
             if not line or line.startswith("#"):
                 continue
             fields = [f.strip() for f in line.split(",")]
-            if not header_seen:
-                if [f.lower() for f in fields] != expected:
-                    raise ValueError(f"{path}: line {number}: expected header "
-                                     f"{','.join(expected)!r}, got {line!r}")
-                header_seen = True
+            if names is None:
+                names = _spectra_header(path, number, line, fields, required, exact)
                 continue
-            if len(fields) != len(expected):
-                raise ValueError(f"{path}: line {number}: expected {len(expected)} fields, "
+            if len(fields) != len(names) + 1:
+                raise ValueError(f"{path}: line {number}: expected {len(names) + 1} fields, "
                                  f"got {len(fields)}")
             try:
                 values = [float(f) for f in fields]
@@ -118,9 +113,40 @@ def read_curve_csv(path, columns, check_row=None):
             if problem:
                 raise ValueError(f"{path}: line {number}: {problem}")
             rows.append(values)
-    if not header_seen:
-        raise ValueError(f"{path}: empty file, expected header {','.join(expected)!r}")
+    if names is None:
+        raise ValueError(f"{path}: empty file, expected a header 'wavelength_nm,<name>,...'")
     if not rows:
         raise ValueError(f"{path}: no data lines")
+    if len(rows) < min_rows:
+        raise ValueError(f"{path}: needs at least {min_rows} data rows, got {len(rows)}")
     table = np.asarray(rows, dtype=float)
-    return table[:, 0], table[:, 1:]
+    return table[:, 0], {name: table[:, i + 1] for i, name in enumerate(names)}
+
+
+def _spectra_header(path, number, line, fields, required, exact):
+    expected = None if exact is None else ["wavelength_nm", *exact]
+    if expected is not None and [f.lower() for f in fields] != expected:
+        raise ValueError(f"{path}: line {number}: expected header {','.join(expected)!r}, "
+                         f"got {line!r}")
+    if fields[0].lower() != "wavelength_nm" or len(fields) < 2:
+        raise ValueError(f"{path}: line {number}: header must be 'wavelength_nm,<name>,...', "
+                         f"got {line!r}")
+    names = fields[1:] if expected is None else list(exact)
+    if len(set(names)) != len(names) or any(not name for name in names):
+        raise ValueError(f"{path}: line {number}: column names must be unique and non-empty")
+    missing = [name for name in required if name not in names]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)} (header: {line})")
+    return names
+
+
+def read_curve_csv(path, columns, check_row=None):
+    """Tabulated curves with exactly the header ``wavelength_nm,<columns...>`` (see :func:`read_spectra_csv`).
+
+    Returns
+    -------
+    (wavelength_nm, values)
+        1-D array (nm) and an array (rows, len(columns)).
+    """
+    wavelengths, table = read_spectra_csv(path, exact=tuple(columns), check_row=check_row)
+    return wavelengths, np.stack([table[name] for name in columns], axis=1)
