@@ -70,3 +70,23 @@ def test_hemoglobin_changes_over_a_dynamic_sequence(face):
     assert (last["C_h_in"][positive] / first["C_h_in"][positive]).max() == pytest.approx(
         1 + dynamic.truth_settings.hemoglobin_swing, rel=1e-3)
     np.testing.assert_array_equal(last["C_m"], first["C_m"])
+
+
+def test_capture_cameras_reproduce_the_rendering_cameras(face):
+    """The cameras written to capture.json (OpenCV K, R, t) give the rays the synthesizer rendered."""
+    from polarbssrdf.io import mitsuba_sensor_dict
+    from polarbssrdf.synth.synthesize import capture_manifest
+
+    prepared, _ = face
+    manifest = capture_manifest(prepared)
+    uv = np.random.default_rng(2).uniform(0.02, 0.98, size=(2, 200))
+    for rig_camera in prepared.stage.cameras:
+        rendered = mi.load_dict(rig_camera.sensor_dict(spp=1))
+        stored = mi.load_dict(mitsuba_sensor_dict(manifest.camera(rig_camera.name), spp=1))
+        rays = [sensor.sample_ray(0.0, 0.5, mi.Point2f(uv), mi.Point2f(0.5))[0]
+                for sensor in (rendered, stored)]
+        d = np.array(rays[0].d)
+        np.testing.assert_allclose(np.array(rays[1].d), d, atol=1e-5)
+        # the same line (origins sit on different near planes)
+        offset = np.array(rays[0].o) - np.array(rays[1].o)
+        np.testing.assert_allclose(np.cross(offset.T, d.T), 0.0, atol=1e-3)
