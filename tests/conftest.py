@@ -26,9 +26,3 @@ def hemisphere(rng):
         return out[:n]
 
     return sample
-
-
-@pytest.fixture
-def mono_polarized():
-    mi.set_variant("llvm_ad_mono_polarized")
-    return mi
