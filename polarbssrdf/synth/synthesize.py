@@ -4,8 +4,9 @@ For every frame, view and band: the face's maps give ``pbssrdf``'s glossy
 parameters and, through the two-layer skin model, per-texel layer totals
 (eq. 42) whose combination is the band's subsurface albedo (eq. 47); the
 coaxial light's transmitted irradiance is diffused in texture space through
-the layers' sum-of-Gaussians profiles (eq. 46) and rendered by ``pexitance``; the camera records I0/I45/I90/I135 (or, with
-``raw``, the noisy 12-bit mosaic of a polarization sensor). The geometry is
+the layers' sum-of-Gaussians profiles (eq. 46) and rendered by
+``pexitance``; the camera records I0/I45/I90/I135 (or, with ``raw``, the
+noisy 12-bit mosaic of a polarization sensor). The geometry is
 the base mesh displaced by the displacement map; the capture stores the
 base mesh, as a multi-view-stereo reconstruction would give it.
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
 
 from polarbssrdf.geometry import displace, face_mesh, texel_atlas, to_mitsuba, uv_sphere
 from polarbssrdf.geometry.face import face_region_masks
@@ -91,7 +93,7 @@ def subsurface_albedo(maps, bands):
 
 @dataclasses.dataclass
 class PreparedCapture:
-    """Everything fixed before rendering: the rig, geometry, texel atlas, truth and kernels."""
+    """Everything fixed before rendering: rig, base geometry, static truth maps, blur kernels."""
 
     settings: SynthesisSettings
     bands: list
@@ -122,8 +124,6 @@ def prepare_capture(settings, bands, truth_settings=None):
     flush = None
     if settings.object == "face":
         masks = face_region_masks(settings.texture)
-        from scipy.ndimage import gaussian_filter
-
         flush = gaussian_filter(masks["cheeks"].astype(np.float64), 4.0)
         flush /= max(flush.max(), 1e-12)
     kernels = layer_profile_kernels(bands, TABLE2[tuple(truth_settings.skin)])
