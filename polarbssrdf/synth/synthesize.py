@@ -14,6 +14,7 @@ base mesh, as a multi-view-stereo reconstruction would give it.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
@@ -225,13 +226,63 @@ def truth_channels(state, bands):
     return channels
 
 
+PREVIEW_FILE = "preview.png"
+PREVIEW_SIZE = 160
+
+
+def preview_bands(bands):
+    """Indices of three bands shown as red, green and blue in previews (reddest first)."""
+    order = sorted(range(len(bands)), key=lambda i: bands[i].centroid_nm, reverse=True)
+    if len(order) >= 3:
+        return [order[0], order[len(order) // 2], order[-1]]
+    return [order[0]] * 3
+
+
+def preview_tiles(channels, bands, camera_name):
+    """``{"cam00 I0": rgb, "cam00 I90": rgb}`` of one view, as linear false colour (float, H x W x 3)."""
+    from PIL import Image
+
+    picked = [bands[i].name for i in preview_bands(bands)]
+    tiles = {}
+    for analyser in ("I0", "I90"):
+        key = f"{{}}.{analyser}"
+        if key.format(picked[0]) not in channels:  # raw captures have no analyser images
+            return {}
+        rgb = np.stack([channels[key.format(name)] for name in picked], axis=-1)
+        height, width = rgb.shape[:2]
+        scale = PREVIEW_SIZE / max(height, width)
+        size = (max(1, round(width * scale)), max(1, round(height * scale)))
+        resized = [np.asarray(Image.fromarray(rgb[..., c].astype(np.float32), "F")
+                              .resize(size, Image.BILINEAR)) for c in range(3)]
+        tiles[f"{camera_name} {analyser}"] = np.stack(resized, axis=-1)
+    return tiles
+
+
+def write_preview(outdir, tiles, overwrite):
+    """A contact sheet of the views (I0 next to I90, one exposure for all) as ``preview.png``."""
+    from polarbssrdf.io.atomic import atomic_write_bytes
+    from polarbssrdf.render.stokes_images import contact_sheet, png_bytes, tonemap_srgb
+
+    if not tiles:
+        return None
+    peak = np.percentile(np.concatenate([t.ravel() for t in tiles.values()]), 99.5)
+    exposure = 1.0 / max(float(peak), 1e-12)
+    sheet = contact_sheet({label: tonemap_srgb(tile, exposure) for label, tile in tiles.items()},
+                          columns=4)
+    path = Path(outdir) / PREVIEW_FILE
+    atomic_write_bytes(path, png_bytes(sheet), overwrite=True)
+    return path
+
+
 def synthesize(outdir, settings, bands=None, truth_settings=None, overwrite=False, resume=False,
                progress=True):
     """Render a synthetic capture with ground truth into ``outdir`` (see the module docstring).
 
     Images are written one by one as they are rendered; with ``resume`` an
     interrupted run continues where it stopped (same settings required).
-    Returns the path of the finished ``capture.json``.
+    ``preview.png`` shows frame 0 of every view rendered in this run (I0 and
+    I90, three bands as red, green and blue). Returns the path of the
+    finished ``capture.json``.
     """
     from tqdm import tqdm
 
@@ -246,6 +297,7 @@ def synthesize(outdir, settings, bands=None, truth_settings=None, overwrite=Fals
     done, truth_done = writer.completed(), writer.completed_truth()
     stage = prepared.stage
     total = settings.frames * len(stage.cameras)
+    tiles = {}
     with tqdm(total=total, desc="synth", unit="image", disable=not progress) as bar:
         for frame in range(settings.frames):
             state = None
@@ -259,8 +311,12 @@ def synthesize(outdir, settings, bands=None, truth_settings=None, overwrite=Fals
                 rng = np.random.default_rng([settings.seed, frame, camera_index])
                 channels = render_frame_view(prepared, state, camera, rng)
                 writer.add_image(frame, camera.name, light, channels)
+                if frame == 0:
+                    tiles.update(preview_tiles(channels, bands, camera.name))
                 bar.update()
             if frame not in truth_done:
                 state = state or prepare_frame(prepared, frame)
                 writer.add_truth(frame, truth_channels(state, bands))
-    return writer.finish()
+    manifest_path = writer.finish()
+    write_preview(outdir, tiles, overwrite)
+    return manifest_path

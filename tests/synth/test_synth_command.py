@@ -30,6 +30,11 @@ def test_synthesized_capture_loads_with_truth(tmp_path):
         for band in manifest.band_names:
             I0, I45, I90, I135 = (images[f"{band}.{a}"] for a in ("I0", "I45", "I90", "I135"))
             np.testing.assert_allclose(I0 + I90, I45 + I135, atol=1e-5 * I0.max())
+    # a contact sheet of the views: I0 and I90 of both cameras, with the object lit
+    from PIL import Image
+
+    preview = np.asarray(Image.open(tmp_path / "cap" / "preview.png"))
+    assert preview.ndim == 3 and preview.shape[2] == 3 and preview.max() > 200
     # the dynamic sequence changes hemoglobin, not melanin
     first, second = capture.truth_maps(0), capture.truth_maps(1)
     assert np.abs(second["C_h_in"] - first["C_h_in"]).max() > 1e-3
