@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import polarbssrdf  # noqa: F401  (configures libLLVM, registers plugins on variant change)
-import mitsuba as mi
+import mitsuba as mi  # noqa: F401  (imported after polarbssrdf on purpose)
 
 
 @pytest.fixture

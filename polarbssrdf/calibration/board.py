@@ -22,7 +22,6 @@ drew for boards with an even number of rows.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -156,13 +155,10 @@ class BoardSpec:
 
 def read_board(path) -> BoardSpec:
     """Read and validate ``BOARD.json``; every error names the file."""
+    from polarbssrdf.io.jsonfile import read_json_file
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"board file not found: {path}")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as error:
-        raise ValueError(f"{path}: not valid JSON ({error})") from None
+    data = read_json_file(path, "board file")
     try:
         return BoardSpec.from_json(data)
     except ValueError as error:

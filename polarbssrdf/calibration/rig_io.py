@@ -119,13 +119,10 @@ def write_cameras(path, document: dict, *, overwrite: bool = False) -> Path:
 
 def read_cameras(path) -> list[Camera]:
     """The cameras of a ``CAMERAS.json`` as :class:`Camera` objects (validated)."""
+    from polarbssrdf.io.jsonfile import read_json_file
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"cameras file not found: {path}")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as error:
-        raise ValueError(f"{path}: not valid JSON ({error})") from None
+    data = read_json_file(path, "cameras file")
     if not isinstance(data, dict) or data.get("schema") != CAMERAS_SCHEMA:
         raise ValueError(f"{path}: not a cameras file (schema must be {CAMERAS_SCHEMA!r})")
     if data.get("schema_version") != CAMERAS_SCHEMA_VERSION:

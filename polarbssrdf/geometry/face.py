@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import pathlib
 
-import numpy as np
-
 from polarbssrdf.geometry.atlas import texel_uv_grid
 from polarbssrdf.geometry.mesh import load_mesh, subdivide
 

@@ -32,7 +32,6 @@ from .twolayer import (
     boundary_terms,
     dermis_reflectance_kernel,
     epidermis_totals_kernel,
-    two_layer_total,
     two_layer_total_kernel,
 )
 

@@ -10,7 +10,6 @@ Table 2; a dynamic sequence varies the hemoglobin fractions over frames.
 from __future__ import annotations
 
 import dataclasses
-import json
 import pathlib
 
 import numpy as np
@@ -72,13 +71,12 @@ class TruthSettings:
 
 def load_settings(path):
     """Settings from a JSON file: any subset of the fields of :class:`TruthSettings`."""
+    from polarbssrdf.io.jsonfile import read_json_file
+
     path = pathlib.Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"parameter file not found: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as error:
-        raise ValueError(f"{path}: not valid JSON ({error})") from error
+    data = read_json_file(path, "parameter file")
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: settings must be a JSON object")
     unknown = set(data) - {f.name for f in dataclasses.fields(TruthSettings)}
     if unknown:
         raise ValueError(f"{path}: unknown settings {sorted(unknown)}")

@@ -1,6 +1,5 @@
 """The texel atlas and the texture convention, checked by ray tracing and by barycentrics."""
 
-import drjit as dr
 import numpy as np
 import pytest
 

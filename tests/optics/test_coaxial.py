@@ -4,7 +4,6 @@ import drjit as dr
 import numpy as np
 import pytest
 
-from helpers import mueller_to_numpy
 from polarbssrdf.optics import (
     coaxial_stokes,
     diffuse_degree_of_polarization,

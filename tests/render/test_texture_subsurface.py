@@ -115,8 +115,6 @@ def test_rendered_images_are_differentiable_with_respect_to_the_albedo_map():
     The render is linear in the albedo map, so the directional derivative
     along the map itself equals the image (finite differences are exact).
     """
-    import drjit as dr
-
     mi.set_variant("llvm_ad_mono_polarized")
     mesh = uv_sphere(50.0, rings=48, segments=96)
     glossy = {"type": "pbssrdf", "eta": ETA, "alpha_s": 0.3, "rho_ss": 0.2, "rho_sss": 0.0}

@@ -1,9 +1,5 @@
 """`polarbssrdf synth`: a loadable capture with truth, refusal to overwrite, resume."""
 
-import json
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
