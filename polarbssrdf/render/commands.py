@@ -40,26 +40,19 @@ DEFAULT_VARIANT = "llvm_ad_mono_polarized"
 _DEFINE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
-def _positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _integer_at_least(minimum: int):
+    """argparse type: an integer >= ``minimum``."""
 
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got '{text}'") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
+        return value
 
-def _non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got '{text}'") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
+    return parse
 
 
 def register(subparsers) -> None:
@@ -83,12 +76,12 @@ def register(subparsers) -> None:
                         help="output directory (created if missing)")
     parser.add_argument("--variant", default=DEFAULT_VARIANT,
                         help=f"polarized Mitsuba variant (default: {DEFAULT_VARIANT})")
-    parser.add_argument("--spp", type=_positive_int, default=None,
+    parser.add_argument("--spp", type=_integer_at_least(1), default=None,
                         help="samples per pixel (default: the scene's sampler)")
     parser.add_argument("-D", "--define", action="append", default=[], metavar="NAME=VALUE",
                         help="set a scene <default> parameter, e.g. -D resolution=64 "
                              "(repeatable; the last value of a name wins)")
-    parser.add_argument("--seed", type=_non_negative_int, default=0,
+    parser.add_argument("--seed", type=_integer_at_least(0), default=0,
                         help="sampler seed (default: 0)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the results of an earlier run in OUTDIR")
