@@ -28,6 +28,11 @@
      lobe between two Fresnel transmissions (eq. 19). (Default: 0.5)
    - |exposed|, |differentiable|
 
+Every parameter is checked against its range at load time. For a bitmap
+texture the check reads the values the texture returns, not the stored data:
+8-bit PNG and JPEG files are stored as 0-255 integers and decoded (from sRGB
+unless ``raw``) at lookup.
+
 Three components, selectable through ``BSDFContext`` like any Mitsuba BSDF:
 0 = specular (glossy), 1 = single scattering (glossy), 2 = subsurface
 (diffuse). A texture-space subsurface integrator evaluates only the glossy
@@ -117,18 +122,90 @@ def _load_texture(props, name):
             parameter.check(name, [value])
     texture = props.get_texture(name, parameter.default)
     params = mi.traverse(texture)
-    for key in params.keys():
-        if key not in ("value", "data"):
-            continue
-        data = params[key]
-        values = data.numpy() if hasattr(data, "numpy") else dr.ravel(data)
+    if "value" in params.keys():
+        data = params["value"]
         # In spectral variants an RGB texture stores spectral-upsampling
         # coefficients, not reflectances: only monochrome values can be checked.
-        is_monochrome = dr.depth_v(data) == 1 if key == "value" else data.shape[-1] == 1
-        if mi.is_spectral and not is_monochrome:
-            continue
-        parameter.check(name, values, f" (texture '{key}')")
+        if not mi.is_spectral or dr.depth_v(data) == 1:
+            parameter.check(name, dr.ravel(data), " (texture 'value')")
+    if "data" in params.keys():
+        values = _bitmap_extreme_values(texture, params)
+        if values is not None:
+            parameter.check(name, values, " (texture 'data')")
     return texture
+
+
+def _bitmap_extreme_values(texture, params):
+    """The smallest and largest values a bitmap texture returns, per channel; None if unknown.
+
+    The stored data is not what the texture returns: Mitsuba keeps 8-bit PNG
+    and JPEG files as 0-255 integers and decodes them (from sRGB unless
+    ``raw``) at lookup, and 16-bit files as half floats. Every such decoding
+    is monotonic per channel, so the texels holding each channel's stored
+    minimum and maximum also hold the extremes of what the texture returns:
+    evaluating the texture there checks its true values at the cost of a few
+    lookups, however large the texture is.
+    """
+    data = np.asarray(params["data"])
+    if data.ndim != 3 or data.size == 0:
+        return None
+    height, width, channels = data.shape
+    if channels not in (1, 3):
+        return None
+    # In spectral variants a non-raw RGB bitmap stores spectral-upsampling
+    # coefficients, which eval_3 refuses: only monochrome values can be checked.
+    if mi.is_spectral and channels == 3 and _is_sRGB_coefficients(texture):
+        return None
+    if np.issubdtype(data.dtype, np.floating) and not np.all(np.isfinite(data)):
+        return data[~np.isfinite(data)]  # reported as non-finite by the range check
+    # Per channel: faster than argmin over axis 0 of a texels x channels view.
+    extremes = [find(data[..., channel]) for channel in range(channels)
+                for find in (np.argmin, np.argmax)]
+    rows, columns = np.divmod(np.array(extremes), width)
+    uv = _texel_centre_uvs(params, rows, columns, height, width)
+    return _evaluate_texture(texture, uv, channels)
+
+
+def _is_sRGB_coefficients(texture):
+    """Whether a 3-channel bitmap in a spectral variant holds upsampling coefficients (not raw)."""
+    # The raw flag is not exposed to Python; the texture's description reports it.
+    return "raw = 0" in str(texture)
+
+
+def _texel_centre_uvs(params, rows, columns, height, width):
+    """Surface UVs (2 x n) whose lookups land on the centres of texels (rows, columns).
+
+    A bitmap made from an array indexes rows by v without a flip; the
+    texture's ``to_uv`` transform is applied to the surface UV before the
+    lookup, so its inverse maps texel centres back to surface UVs.
+    """
+    texel_uv = np.stack([(columns + 0.5) / width, (rows + 0.5) / height, np.ones(len(rows))])
+    if "to_uv" in params.keys():
+        # Inverted here: AffineTransform3f.inverse() drops the translation (Mitsuba 3.9).
+        to_uv = np.array(params["to_uv"].matrix, dtype=np.float64)
+        texel_uv = np.linalg.solve(to_uv, texel_uv)
+    return texel_uv[:2] / texel_uv[2]
+
+
+def _evaluate_texture(texture, uv, channels):
+    """Values (channels x n) of ``texture`` at the surface UVs ``uv`` (2 x n)."""
+    evaluate = texture.eval_1 if channels == 1 else texture.eval_3
+    if not dr.is_jit_v(mi.Float):  # scalar variants evaluate one lookup at a time
+        return np.array([np.ravel(np.array(evaluate(_interaction_at(u, v)), dtype=np.float64))
+                         for u, v in uv.T]).T
+    values = evaluate(_interaction_at(*uv, count=uv.shape[1]))
+    return np.array(values, dtype=np.float64).reshape(channels, -1)
+
+
+def _interaction_at(u, v, count=None):
+    """A surface interaction at UV (u, v), of ``count`` lanes in JIT variants."""
+    si = dr.zeros(mi.SurfaceInteraction3f) if count is None else \
+        dr.zeros(mi.SurfaceInteraction3f, count)
+    si.uv = mi.Point2f(u, v)
+    if mi.is_spectral:
+        si.wavelengths = dr.full(mi.UnpolarizedSpectrum, 550.0) if count is None else \
+            dr.full(mi.UnpolarizedSpectrum, 550.0, count)
+    return si
 
 
 def _mean_channel(spectrum):

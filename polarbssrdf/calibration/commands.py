@@ -22,8 +22,16 @@ SPHERE_SCHEMA = "polarbssrdf.calibration.sphere"
 SCHEMA_VERSION = 1
 
 
+OVERWRITE_HELP = "replace the output files if they exist (default: refuse)"
+
+
 def register(subparsers) -> None:
     """Add ``calibrate`` (with sub-commands) to the ``polarbssrdf`` parser."""
+    # Light modules only: they quote their defaults in the help without importing
+    # colour-science or OpenCV, which `polarbssrdf --help` must not pay for.
+    from .colour_matrix import DEFAULT_CHECKER
+    from .spectral_response import DEFAULT_SMOOTHNESS
+
     parser = subparsers.add_parser(
         "calibrate", help="calibrate cameras (ChArUco), colour, spectral response, sphere gains",
         description="Calibration toolkit (supplement section 3.2); see docs/calibration.md.")
@@ -34,16 +42,22 @@ def register(subparsers) -> None:
         description="DIR holds one folder per camera with images named by shot; the same shot "
                     "name in several folders is one simultaneous view. Writes CAMERAS.json "
                     "(world = first camera, mm).")
-    geometry.add_argument("directory", metavar="DIR", type=Path)
-    geometry.add_argument("--board", required=True, type=Path, metavar="BOARD.json")
-    geometry.add_argument("--out", required=True, type=Path, metavar="CAMERAS.json")
+    geometry.add_argument("directory", metavar="DIR", type=Path,
+                          help="folder of camera folders, each with one image per shot")
+    geometry.add_argument("--board", required=True, type=Path, metavar="BOARD.json",
+                          help="the ChArUco board: squares_x, squares_y, square_mm, marker_mm, "
+                               "dictionary (see docs/calibration.md)")
+    geometry.add_argument("--out", required=True, type=Path, metavar="CAMERAS.json",
+                          help="output: intrinsics and extrinsics per camera (world = reference "
+                               "camera, mm)")
     geometry.add_argument("--model", choices=("opencv", "pinhole"), default="opencv",
                           help="opencv: fx, fy, 5 distortion coefficients; pinhole: fx = fy, no "
-                               "distortion (renderable by Mitsuba as is)")
+                               "distortion (renderable by Mitsuba as is) (default: opencv)")
     geometry.add_argument("--reference", help="camera that defines the world frame "
                                               "(default: first folder in sorted order)")
     geometry.add_argument("--sensor", default="ideal",
-                          help="sensor written per camera: ideal, IMX250MZR or IMX250MYR")
+                          help="sensor written per camera: ideal, IMX250MZR or IMX250MYR "
+                               "(default: ideal)")
     geometry.add_argument("--min-views", type=int, default=4,
                           help="fewest views with a detected board per camera (default 4)")
     geometry.add_argument("--outlier-factor", type=float, default=3.0,
@@ -51,21 +65,26 @@ def register(subparsers) -> None:
                                "view RMS, FLOOR) and recalibrate (default 3)")
     geometry.add_argument("--outlier-floor-px", type=float, default=1.0,
                           help="FLOOR of the outlier rule in px (default 1)")
-    geometry.add_argument("--overwrite", action="store_true")
+    geometry.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     geometry.set_defaults(run=run_geometry)
 
     colour = commands.add_parser(
         "colour", help="3 x 3 colour matrix from colour-checker patches",
         description="PATCHES.csv: header 'patch,R,G,B', linear camera values per patch, in chart "
                     "order or named by the chart's patch names.")
-    colour.add_argument("patches", metavar="PATCHES.csv", type=Path)
-    colour.add_argument("--out", required=True, type=Path, metavar="COLOUR.json")
-    colour.add_argument("--checker", default=None, help="colour-science chart name")
-    colour.add_argument("--space", choices=("sRGB", "XYZ"), default="sRGB")
+    colour.add_argument("patches", metavar="PATCHES.csv", type=Path,
+                        help="linear camera R, G, B per chart patch")
+    colour.add_argument("--out", required=True, type=Path, metavar="COLOUR.json",
+                        help="output: the 3 x 3 matrix and per-patch residuals")
+    colour.add_argument("--checker", default=None,
+                        help=f"colour-science chart name (default: {DEFAULT_CHECKER!r})")
+    colour.add_argument("--space", choices=("sRGB", "XYZ"), default="sRGB",
+                        help="reference space of the matrix: linear sRGB (D65) or CIE XYZ "
+                             "(default: sRGB)")
     colour.add_argument("--weighting", choices=("relative", "none"), default="relative",
                         help="relative: every patch counts by its relative error (default); "
                              "none: plain least squares")
-    colour.add_argument("--overwrite", action="store_true")
+    colour.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     colour.set_defaults(run=run_colour)
 
     spectral = commands.add_parser(
@@ -78,24 +97,37 @@ def register(subparsers) -> None:
     spectral.add_argument("--measurements", required=True, type=Path, metavar="MEASUREMENTS.csv",
                           help="'band,<channel>,...': camera value of the target per band")
     spectral.add_argument("--filter", action="append", default=[], metavar="NAME=FILTER.csv",
-                          help="'wavelength_nm,incident,transmitted[,dark]' spectrometer readings")
+                          help="'wavelength_nm,incident,transmitted[,dark]' spectrometer readings "
+                               "of a filter; repeat for several filters (default: no filter)")
     spectral.add_argument("--stage-light", type=Path, metavar="LIGHT.csv",
                           help="'wavelength_nm,value': the stage light for the bands "
                                "(default: the package's default LED)")
-    spectral.add_argument("--smoothness", type=float, default=None)
-    spectral.add_argument("--out", required=True, type=Path, metavar="SPECTRAL.json")
+    spectral.add_argument("--smoothness", type=float, default=None,
+                          help="weight of the second-difference penalty on the responses, "
+                               f"dimensionless (default: {DEFAULT_SMOOTHNESS:g})")
+    spectral.add_argument("--out", required=True, type=Path, metavar="SPECTRAL.json",
+                          help="output: responses, filter transmittances and bands")
     spectral.add_argument("--bands-out", type=Path, metavar="BANDS.json",
-                          help="also write the bands as a band file (polarbssrdf.spectral.read_bands)")
-    spectral.add_argument("--overwrite", action="store_true")
+                          help="also write the bands as a band file (polarbssrdf.spectral.read_bands) "
+                               "(default: not written)")
+    spectral.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     spectral.set_defaults(run=run_spectral)
 
     sphere = commands.add_parser(
         "sphere", help="cross-camera gains from images of a white reference sphere",
-        description="DIR holds one image per camera, named <camera>.<ext> (EXR or PNG/TIFF).")
-    sphere.add_argument("directory", metavar="DIR", type=Path)
-    sphere.add_argument("--out", required=True, type=Path, metavar="GAINS.json")
+        description="DIR holds one linear image per camera, named <camera>.<ext> (EXR, or 16-bit "
+                    "or float TIFF). 8-bit and PNG/JPEG images are display-encoded (sRGB) and "
+                    "refused unless --decode-srgb.")
+    sphere.add_argument("directory", metavar="DIR", type=Path,
+                        help="folder with one white-sphere image per camera")
+    sphere.add_argument("--out", required=True, type=Path, metavar="GAINS.json",
+                        help="output: the gain per camera and channel")
     sphere.add_argument("--reference", help="camera with gain 1 (default: first in sorted order)")
-    sphere.add_argument("--overwrite", action="store_true")
+    sphere.add_argument("--decode-srgb", action="store_true",
+                        help="decode integer images (PNG, JPEG, TIFF, ...) from sRGB to linear "
+                             "instead of refusing 8-bit and PNG/JPEG images; float images are "
+                             "always taken as linear (default: off)")
+    sphere.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sphere.set_defaults(run=run_sphere)
 
 
@@ -287,7 +319,7 @@ def run_sphere(args) -> int:
     for path in files:
         if path.stem in images:
             raise ValueError(f"{directory}: two images for camera {path.stem!r}")
-        images[path.stem] = _read_linear_image(path)
+        images[path.stem] = _read_sphere_image(path, args.decode_srgb)
     gains = sphere_gains(images, reference=args.reference)
     document = {"schema": SPHERE_SCHEMA, "schema_version": SCHEMA_VERSION,
                 "reference_camera": args.reference or sorted(images)[0],
@@ -300,8 +332,39 @@ def run_sphere(args) -> int:
     return 0
 
 
-def _read_linear_image(path: Path) -> np.ndarray:
-    """An image as float (EXR: channels in name order; others: OpenCV, BGR reversed to RGB)."""
+DISPLAY_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+"""Integer image formats that cameras and viewers write display-encoded (sRGB), not linear."""
+
+
+def _read_sphere_image(path: Path, decode_srgb: bool = False) -> np.ndarray:
+    """A sphere image as linear float values.
+
+    Integer PNG, JPEG and BMP files, and 8-bit files of any format, are almost
+    always display-encoded (sRGB): their values are roughly radiance^(1/2.2),
+    and gains computed from them are silently wrong. They are refused unless
+    ``decode_srgb``, which decodes every integer image from sRGB (its values
+    scaled to [0, 1] by the type's maximum) to linear. Float images (EXR,
+    float TIFF) and 16-bit TIFF/PGM files are taken as linear.
+    """
+    from .normalization import srgb_to_linear
+
+    image = _read_image(path)
+    if not np.issubdtype(image.dtype, np.integer):
+        return image.astype(np.float64)
+    if decode_srgb:
+        return srgb_to_linear(image / float(np.iinfo(image.dtype).max))
+    bits = 8 * image.dtype.itemsize
+    if path.suffix.lower() in DISPLAY_SUFFIXES or bits == 8:
+        raise CommandError(
+            f"{path}: a {bits}-bit {path.suffix.lstrip('.').upper()} image holds display-encoded "
+            f"(sRGB) values, not linear radiance, so gains from it would be wrong (sRGB 0.5 is "
+            f"linear 0.21); give linear images (EXR, or 16-bit or float TIFF from a raw "
+            f"developer), or pass --decode-srgb to decode these images from sRGB to linear")
+    return image.astype(np.float64)
+
+
+def _read_image(path: Path) -> np.ndarray:
+    """An image in its stored type (EXR: float channels in name order; others: OpenCV, RGB)."""
     if path.suffix.lower() == ".exr":
         from polarbssrdf.io.exr import read_exr
 
@@ -314,5 +377,5 @@ def _read_linear_image(path: Path) -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(f"{path}: OpenCV cannot read this image")
-    image = image.astype(np.float64)
+    # OpenCV orders colour channels BGR(A): reverse the first three to RGB.
     return image[..., 2::-1] if image.ndim == 3 and image.shape[2] >= 3 else image

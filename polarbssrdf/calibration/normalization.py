@@ -21,7 +21,13 @@ import numpy as np
 
 from .board import _cv2
 
-__all__ = ["sphere_gains", "sphere_statistic"]
+__all__ = ["sphere_gains", "sphere_statistic", "srgb_to_linear"]
+
+
+def srgb_to_linear(encoded) -> np.ndarray:
+    """Linear values from sRGB-encoded ones in [0, 1] (the IEC 61966-2-1 decoding curve)."""
+    encoded = np.asarray(encoded, dtype=np.float64)
+    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
 
 
 def sphere_statistic(image, *, threshold: float = 0.25, inner_fraction: float = 0.5) -> np.ndarray:

@@ -22,7 +22,6 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..spectral.bands import Band
 from .chromophores import DEFAULT_REFRACTIVE_INDEX, check_wavelengths
@@ -213,6 +212,8 @@ def _table(key, size: str):
         projection = vt[:8].T
     else:
         projection = np.eye(values.shape[1])
+    from scipy.spatial import cKDTree  # imported here: scipy.spatial costs ~0.3 s to import
+
     return grid, (mean, projection), cKDTree((values - mean) @ projection)
 
 

@@ -117,7 +117,6 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.special import expn
 
 from polarbssrdf.optics.fresnel import average_diffuse_fresnel_reflectance, fresnel_reflectance
 
@@ -220,6 +219,8 @@ _E3_MAX = 48.0
 
 @functools.lru_cache(maxsize=1)
 def _e3_table() -> np.ndarray:
+    from scipy.special import expn  # imported here: scipy.special is slow to import
+
     grid = np.arange(0.0, _E3_MAX + 2 * _E3_STEP, _E3_STEP)
     return 2.0 * expn(3, grid)
 

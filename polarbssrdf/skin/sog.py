@@ -13,7 +13,6 @@ but fits the thin-epidermis transmittance profiles only to a few percent.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import nnls
 
 V0_MM2 = 0.01**2
 
@@ -69,6 +68,8 @@ def fit_sog(r_mm, profile, variances_mm2=None) -> np.ndarray:
     r = np.asarray(r_mm, dtype=float)
     sqrt_w = np.sqrt(_radial_weights(r))
     basis = gaussian(variances[None, :], r[:, None]) * sqrt_w[:, None]
+    from scipy.optimize import nnls  # imported here: scipy.optimize is slow to import
+
     weights, _ = nnls(basis, np.asarray(profile, dtype=float) * sqrt_w, maxiter=50 * len(variances))
     return weights
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import j0
 
 from .multipole import ballistic_totals, diffuse_unscattered_fraction, slab_totals
 
@@ -75,6 +74,8 @@ def inverse_hankel(k, transform, r):
     weights[0] = 0.5 * (k[1] - k[0])
     weights[-1] = 0.5 * (k[-1] - k[-2])
     kernel_weight = transform * k * weights / (2.0 * np.pi)
+    from scipy.special import j0  # imported here: scipy.special is slow to import
+
     r = np.asarray(r, dtype=float)
     out = np.empty(r.shape)
     flat = r.ravel()

@@ -12,7 +12,6 @@ import json
 from dataclasses import dataclass, field
 
 import numpy as np
-from colour import SDS_ILLUMINANTS
 
 from .curves import comb_curve, complementary_curve, gaussian_curve, sample_curve, wavelength_grid
 
@@ -100,6 +99,8 @@ def default_filters() -> dict:
 
 def default_light():
     """A white phosphor LED: CIE LED-B3 (colour-science's SDS_ILLUMINANTS)."""
+    from colour import SDS_ILLUMINANTS  # imported here: see polarbssrdf.spectral.curves
+
     return SDS_ILLUMINANTS["LED-B3"]
 
 

@@ -3,12 +3,21 @@
 A "curve" accepted by these functions is any of: a
 ``colour.SpectralDistribution``, a ``(wavelengths_nm, values)`` pair, or a
 callable ``f(wavelengths_nm) -> values``.
+
+colour-science is imported by the functions that need it, not by this
+module: importing it costs about a second and changes NumPy's print options
+for the whole process.
 """
 
 from __future__ import annotations
 
+import sys
+from typing import TYPE_CHECKING
+
 import numpy as np
-from colour import SpectralDistribution, SpectralShape
+
+if TYPE_CHECKING:
+    from colour import SpectralDistribution
 
 
 def spectral_distribution(wavelengths_nm, values, name: str = "curve") -> SpectralDistribution:
@@ -19,6 +28,8 @@ def spectral_distribution(wavelengths_nm, values, name: str = "curve") -> Spectr
         raise ValueError("a spectral curve needs matching 1-D wavelength and value arrays of length >= 2")
     if np.any(np.diff(wl) <= 0):
         raise ValueError("wavelengths must increase strictly")
+    from colour import SpectralDistribution
+
     return SpectralDistribution(dict(zip(wl.tolist(), v.tolist())), name=name)
 
 
@@ -26,7 +37,16 @@ def wavelength_grid(start_nm: float = 400.0, end_nm: float = 700.0, step_nm: flo
     """Inclusive regular grid, via ``colour.SpectralShape``."""
     if step_nm <= 0 or end_nm < start_nm:
         raise ValueError(f"bad wavelength grid {start_nm}:{end_nm}:{step_nm}")
+    from colour import SpectralShape
+
     return np.asarray(SpectralShape(start_nm, end_nm, step_nm).wavelengths, dtype=float)
+
+
+def _is_spectral_distribution(curve) -> bool:
+    """Whether ``curve`` is a colour-science ``SpectralDistribution``, without importing colour."""
+    # Such an object can only exist once colour-science has been imported.
+    colour = sys.modules.get("colour")
+    return colour is not None and isinstance(curve, colour.SpectralDistribution)
 
 
 def sample_curve(curve, wavelengths_nm) -> np.ndarray:
@@ -34,7 +54,7 @@ def sample_curve(curve, wavelengths_nm) -> np.ndarray:
     outside the curve's own wavelength range (a filter or a light has no
     output where it was not measured)."""
     wl = np.asarray(wavelengths_nm, dtype=float)
-    if isinstance(curve, SpectralDistribution):
+    if _is_spectral_distribution(curve):
         src_wl, src_v = np.asarray(curve.wavelengths), np.asarray(curve.values)
     elif isinstance(curve, tuple) and len(curve) == 2:
         src_wl, src_v = (np.asarray(x, dtype=float) for x in curve)

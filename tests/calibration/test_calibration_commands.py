@@ -193,13 +193,95 @@ def test_spectral_command(tmp_path):
     assert [b.name for b in bands] == ["GA", "RA"]
 
 
-def test_sphere_command(tmp_path):
+SPHERES = [("cam0", 1.0, (160, 120, 60)), ("cam1", 1.25, (140, 110, 80))]
+"""Two cameras seeing the white sphere: name, true gain, (centre x, centre y, radius) in px."""
+
+
+def sphere_radiance(gain, cx, cy, radius):
+    """Linear radiance of a coaxially lit Lambertian sphere (240 x 320), peak 0.7 x gain."""
     rows, columns = np.mgrid[0:240, 0:320].astype(float)
-    for name, gain, (cx, cy, radius) in [("cam0", 1.0, (160, 120, 60)), ("cam1", 1.25, (140, 110, 80))]:
-        shading = np.sqrt(np.clip(1 - ((columns - cx) ** 2 + (rows - cy) ** 2) / radius ** 2, 0, None))
-        cv2.imwrite(str(tmp_path / f"{name}.png"), np.round(180.0 * gain * shading).astype(np.uint8))
+    return 0.7 * gain * np.sqrt(np.clip(1 - ((columns - cx) ** 2 + (rows - cy) ** 2) / radius ** 2,
+                                        0, None))
+
+
+def srgb_encode(linear):
+    """The sRGB transfer curve (IEC 61966-2-1) of values in [0, 1]."""
+    linear = np.clip(linear, 0.0, 1.0)
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+
+
+def test_sphere_command(tmp_path):
+    """Linear 16-bit TIFF images give the true gains."""
+    for name, gain, layout in SPHERES:
+        image = np.round(65535 * sphere_radiance(gain, *layout)).astype(np.uint16)
+        cv2.imwrite(str(tmp_path / f"{name}.tiff"), image)
     out = tmp_path / "gains.json"
     assert run(["calibrate", "sphere", str(tmp_path), "--out", str(out)]) == 0
     gains = json.loads(out.read_text())["gains"]
     np.testing.assert_allclose(gains["cam1"], 1.25, rtol=0.01)
     np.testing.assert_allclose(gains["cam0"], 1.0)
+
+
+@pytest.mark.parametrize("suffix,dtype", [(".png", np.uint8), (".jpg", np.uint8),
+                                          (".png", np.uint16), (".tiff", np.uint8)])
+def test_sphere_command_refuses_display_encoded_images(tmp_path, capsys, suffix, dtype):
+    """sRGB previews are not radiance (they gave a gain of 1.097 for 1.25): a clear error."""
+    scale = np.iinfo(dtype).max
+    for name, gain, layout in SPHERES:
+        encoded = np.round(scale * srgb_encode(sphere_radiance(gain, *layout))).astype(dtype)
+        cv2.imwrite(str(tmp_path / f"{name}{suffix}"), encoded)
+    out = tmp_path / "gains.json"
+    assert run(["calibrate", "sphere", str(tmp_path), "--out", str(out)]) == 2
+    error = capsys.readouterr().err
+    assert f"cam0{suffix}" in error and "sRGB" in error and "linear" in error
+    assert "--decode-srgb" in error
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("suffix,dtype", [(".png", np.uint8), (".png", np.uint16),
+                                          (".jpg", np.uint8)])
+def test_sphere_command_decodes_srgb_images_on_request(tmp_path, suffix, dtype):
+    scale = np.iinfo(dtype).max
+    for name, gain, layout in SPHERES:
+        encoded = np.round(scale * srgb_encode(sphere_radiance(gain, *layout))).astype(dtype)
+        cv2.imwrite(str(tmp_path / f"{name}{suffix}"), encoded)
+    out = tmp_path / "gains.json"
+    assert run(["calibrate", "sphere", str(tmp_path), "--out", str(out), "--decode-srgb"]) == 0
+    gains = json.loads(out.read_text())["gains"]
+    np.testing.assert_allclose(gains["cam1"], 1.25, rtol=0.01)
+    np.testing.assert_allclose(gains["cam0"], 1.0)
+
+
+def test_sphere_command_takes_exr_images_as_linear_even_with_decode_srgb(tmp_path):
+    from polarbssrdf.io.exr import write_exr
+
+    for name, gain, layout in SPHERES:
+        write_exr(tmp_path / f"{name}.exr", {"Y": sphere_radiance(gain, *layout).astype(np.float32)})
+    out = tmp_path / "gains.json"
+    assert run(["calibrate", "sphere", str(tmp_path), "--out", str(out), "--decode-srgb"]) == 0
+    np.testing.assert_allclose(json.loads(out.read_text())["gains"]["cam1"], 1.25, rtol=1e-3)
+
+
+def calibrate_subcommands():
+    """The ``calibrate`` sub-parsers of the real command line, by name."""
+    parser = cli.build_parser()
+    commands_action = next(a for a in parser._subparsers._group_actions)
+    calibrate = commands_action.choices["calibrate"]
+    what = next(a for a in calibrate._subparsers._group_actions)
+    return what.choices
+
+
+def test_every_calibrate_option_has_help_with_its_default():
+    subcommands = calibrate_subcommands()
+    assert set(subcommands) == {"geometry", "colour", "spectral", "sphere"}
+    for name, subparser in subcommands.items():
+        for action in subparser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            label = f"calibrate {name} {'/'.join(action.option_strings) or action.dest}"
+            assert action.help and action.help.strip(), f"{label} has no help"
+            optional = action.option_strings and not action.required
+            if optional and action.nargs != 0:  # options taking a value: say what happens without
+                assert "default" in action.help, f"{label}: help does not give the default"
+        # argparse formats every help text (a stray '%' would fail here)
+        assert subparser.format_help()

@@ -275,3 +275,113 @@ def test_grazing_directions_match_a_double_precision_evaluation(rng):
     scale = np.abs(double).max(axis=(0, 1))
     assert np.all(scale > 0)
     assert (np.abs(single - double).max(axis=(0, 1)) / scale).max() < 1e-4
+
+
+def srgb_to_linear(encoded):
+    """The sRGB transfer function (IEC 61966-2-1), decoding values in [0, 1]."""
+    encoded = np.asarray(encoded, dtype=np.float64)
+    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
+
+
+def write_8bit(path, values, channels=1):
+    """Write 8-bit ``values`` (rows x columns) as a grey or RGB PNG/JPEG file with PIL."""
+    from PIL import Image
+
+    values = np.asarray(values, dtype=np.uint8)
+    if channels == 3:
+        values = np.stack([values] * 3, axis=-1)
+    Image.fromarray(values).save(path, quality=95)
+    return str(path)
+
+
+def gradient(low=40, high=220, size=16):
+    """A size x size 8-bit gradient along the columns (u), from ``low`` to ``high``."""
+    return np.tile(np.linspace(low, high, size).round(), (size, 1))
+
+
+@pytest.mark.parametrize("variant", ["llvm_ad_mono_polarized", "llvm_ad_spectral_polarized",
+                                     "scalar_rgb"])
+@pytest.mark.parametrize("suffix", ["png", "jpg"])
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("raw", [False, True])
+def test_8bit_textures_load(tmp_path, variant, suffix, channels, raw):
+    """8-bit files are stored as 0-255 integers: the check sees the values the texture returns."""
+    mi.set_variant(variant)
+    path = write_8bit(tmp_path / f"albedo.{suffix}", gradient(0, 255), channels)
+    bsdf = pbssrdf(rho_sss={"type": "bitmap", "filename": path, "raw": raw})
+    assert "rho_sss.data" in mi.traverse(bsdf).keys()
+
+
+@pytest.mark.parametrize("raw", [False, True])
+def test_8bit_texture_range_check_reports_the_decoded_value(tmp_path, raw):
+    """An 8-bit eta map is always out of range; the error quotes the value eval would return."""
+    mi.set_variant("llvm_ad_mono_polarized")
+    path = write_8bit(tmp_path / "eta.png", np.full((8, 8), 128))
+    expected = 128 / 255 if raw else srgb_to_linear(128 / 255)
+    with pytest.raises(Exception, match="eta") as info:
+        pbssrdf(eta={"type": "bitmap", "filename": path, "raw": raw})
+    message = str(info.value)
+    assert "range" in message
+    reported = float(message.split(" = ")[1].split()[0])
+    assert reported == pytest.approx(expected, rel=1e-4)
+
+
+def test_range_check_follows_the_texture_uv_transform(tmp_path):
+    """With a ``to_uv`` transform the check still looks up the texel holding the bad value."""
+    mi.set_variant("llvm_ad_mono_polarized")
+    data = np.full((8, 8, 1), 1.3, dtype=np.float32)
+    data[5, 2] = 0.9
+    path = tmp_path / "eta.exr"
+    mi.Bitmap(data).write(str(path))
+    to_uv = mi.ScalarTransform4f().translate([0.3, -0.2, 0]).scale([2.0, 3.0, 1.0])
+    with pytest.raises(Exception, match="eta.* = 0.9 "):
+        pbssrdf(eta={"type": "bitmap", "filename": str(path), "raw": True, "to_uv": to_uv})
+
+
+def test_nan_in_texture_data_fails(tmp_path):
+    mi.set_variant("llvm_ad_mono_polarized")
+    data = np.full((4, 4, 1), 0.5, dtype=np.float32)
+    data[1, 3] = np.nan
+    path = tmp_path / "rho_sss.exr"
+    mi.Bitmap(data).write(str(path))
+    with pytest.raises(Exception, match="rho_sss.*NaN"):
+        pbssrdf(rho_sss={"type": "bitmap", "filename": str(path), "raw": True})
+
+
+def test_sphere_with_a_png_albedo_renders_like_its_decoded_float_map(tmp_path):
+    """A PNG albedo renders finite, brighter where the albedo is higher, like its sRGB decoding.
+
+    The sphere's u is the azimuth atan2(y, x) / 2 pi seen from the +z camera:
+    u < 0.5 (the darker half of the gradient) is the upper half of the image.
+    """
+    mi.set_variant("llvm_ad_mono_polarized")
+    values = gradient()
+    png = write_8bit(tmp_path / "albedo.png", values)
+    exr = tmp_path / "albedo.exr"
+    decoded = srgb_to_linear(values / 255.0).astype(np.float32)[..., None]
+    mi.Bitmap(decoded).write(str(exr))
+
+    def render(texture_file):
+        albedo = {"type": "bitmap", "filename": str(texture_file)}
+        scene = {
+            "type": "scene",
+            "integrator": {"type": "stokes", "inner": {"type": "direct"}},
+            "sensor": {
+                "type": "perspective", "fov": 14,
+                "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 500], target=[0, 0, 0],
+                                                           up=[0, 1, 0]),
+                "film": {"type": "hdrfilm", "width": 32, "height": 32,
+                         "rfilter": {"type": "box"}},
+            },
+            "light": {"type": "ppoint", "position": [0.0, 0.0, 500.0], "intensity": 5e5},
+            "sphere": {"type": "sphere", "radius": 50.0,
+                       "bsdf": {"type": "pbssrdf", "rho_s": 0.0, "rho_ss": 0.0,
+                                "rho_sss": albedo}},
+        }
+        return np.array(mi.render(mi.load_dict(scene), spp=4, seed=1))[..., 1]  # S0
+
+    S0 = render(png)
+    assert np.all(np.isfinite(S0))
+    upper, lower = S0[:16].sum(), S0[16:].sum()
+    assert lower > 1.5 * upper > 0
+    np.testing.assert_allclose(S0, render(exr), rtol=1e-3, atol=1e-6 * S0.max())
