@@ -42,10 +42,13 @@ __all__ = [
     "PLAN_NAME",
     "Capture",
     "CaptureWriter",
+    "PlanMismatchError",
     "check_image_channels",
     "dumps_json",
+    "json_differences",
     "load_capture",
     "read_json",
+    "short_json",
     "write_capture",
 ]
 
@@ -175,6 +178,58 @@ def _name(item) -> str:
     return item.name if isinstance(item, (Camera, Light)) else str(item)
 
 
+# --------------------------------------------------------------------------- plan comparison
+def json_differences(old, new, path: str = "") -> list[tuple[str, object, object]]:
+    """``(path, old value, new value)`` of every place where two JSON documents differ.
+
+    Paths are dotted (``metadata.settings.spp``, ``cameras[1].name``). Lists of
+    different lengths, and values of different types, are reported whole at
+    their path rather than element by element.
+    """
+    if isinstance(old, Mapping) and isinstance(new, Mapping):
+        differences = []
+        for key in list(old) + [k for k in new if k not in old]:
+            child = f"{path}.{key}" if path else str(key)
+            if key not in old or key not in new:
+                differences.append((child, old.get(key, "<absent>"), new.get(key, "<absent>")))
+            else:
+                differences += json_differences(old[key], new[key], child)
+        return differences
+    if isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
+        differences = []
+        for index, (a, b) in enumerate(zip(old, new)):
+            differences += json_differences(a, b, f"{path}[{index}]")
+        return differences
+    return [] if old == new else [(path, old, new)]
+
+
+class PlanMismatchError(FileExistsError):
+    """``resume`` found a capture (plan or finished manifest) that differs from the new plan.
+
+    Attributes
+    ----------
+    directory : pathlib.Path
+    differences : list of (path, old, new)
+        Where the plan on disk (``old``) and the new plan (``new``) differ, as
+        :func:`json_differences` gives them (paths start with ``manifest.``,
+        ``truth_units`` or ``truth_metadata``).
+    """
+
+    def __init__(self, message: str, directory: Path, differences):
+        self.directory = Path(directory)
+        self.differences = list(differences)
+        shown = "; ".join(f"{path}: {short_json(old)} -> {short_json(new)}"
+                          for path, old, new in self.differences[:5])
+        more = f"; and {len(self.differences) - 5} more" if len(self.differences) > 5 else ""
+        super().__init__(f"{message} ({shown}{more})" if shown else message)
+
+
+def short_json(value, limit: int = 60) -> str:
+    """A one-line JSON rendering of ``value``, cut to ``limit`` characters."""
+    text = json.dumps(value, allow_nan=False) if not isinstance(value, str) else repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 # --------------------------------------------------------------------------- writer
 class CaptureWriter:
     """Write a capture image by image, so an interrupted run can resume.
@@ -211,18 +266,24 @@ class CaptureWriter:
     truth_metadata:
         Free-form JSON object for ``truth.json``.
     overwrite:
-        Accept a non-empty directory and replace files of the same names. Files
-        the capture does not name are never touched; an existing
-        ``capture.json`` is renamed to ``capture.superseded-<UTC time>.json``
-        (not deleted) so the directory does not look complete meanwhile.
+        Accept a non-empty directory and start the capture anew: files at the
+        paths the new plan names (its images, truth maps and ``truth.json``)
+        are removed before anything is written, so none of them can later be
+        mistaken for a finished image of this plan (e.g. by a resume after an
+        interrupt). Files the new plan does not name are never touched; an
+        existing ``capture.json`` is renamed to
+        ``capture.superseded-<UTC time>.json`` (not deleted) so the directory
+        does not look complete meanwhile.
     resume:
         Continue a capture started by a writer with the same plan.
 
     Raises
     ------
     FileExistsError
-        The directory is not empty and neither flag is given, or it holds a
-        different capture.
+        The directory is not empty and neither flag is given.
+    PlanMismatchError
+        (a ``FileExistsError``) ``resume`` and the directory holds a different
+        capture; ``differences`` lists the fields that differ.
     """
 
     def __init__(self, directory: str | os.PathLike, manifest: CaptureManifest, *,
@@ -258,16 +319,20 @@ class CaptureWriter:
             if manifest_path.exists() and not plan.exists():
                 existing = CaptureManifest.from_json(read_json(manifest_path))
                 if existing != self.manifest:
-                    raise FileExistsError(f"'{directory}' holds a finished capture with a different "
-                                          "manifest; refusing to resume into it")
+                    differences = json_differences(existing.to_json(), self.manifest.to_json())
+                    raise PlanMismatchError(
+                        f"'{directory}' holds a finished capture with a different manifest; "
+                        "refusing to resume into it", directory,
+                        [(f"manifest.{p}", a, b) for p, a, b in differences])
                 return
             if not plan.exists():
                 raise FileExistsError(f"cannot resume in '{directory}': it has no {PLAN_NAME} "
                                       "(not a capture started by CaptureWriter)")
-            if json.loads(plan.read_text(encoding="utf-8")) != json.loads(self._plan_text):
-                raise FileExistsError(f"cannot resume in '{directory}': its {PLAN_NAME} describes "
-                                      "a different capture (cameras, lights, frames, bands or "
-                                      "truth units differ)")
+            existing_plan = json.loads(plan.read_text(encoding="utf-8"))
+            differences = json_differences(existing_plan, json.loads(self._plan_text))
+            if differences:
+                raise PlanMismatchError(f"cannot resume in '{directory}': its {PLAN_NAME} "
+                                        "describes a different capture", directory, differences)
             return
         if entries and not self.overwrite:
             shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
@@ -277,7 +342,26 @@ class CaptureWriter:
         if manifest_path.exists():
             stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%S%f")
             manifest_path.rename(directory / f"capture.superseded-{stamp}.json")
+        self._remove_planned_files()
         atomic_write_text(plan, self._plan_text, overwrite=True)
+
+    def _planned_paths(self) -> list[Path]:
+        """Every file this plan writes besides the mesh and ``capture.json``: images,
+        truth maps and ``truth.json``."""
+        paths = [self.directory / record.path for _, record in self.manifest.records()]
+        if self.manifest.truth is not None:
+            paths += [self.directory / truth_map_path(self.manifest.truth, frame.index)
+                      for frame in self.manifest.frames]
+            paths.append(self.directory / self.manifest.truth)
+        return paths
+
+    def _remove_planned_files(self) -> None:
+        """Start anew: remove earlier files at this plan's paths (``overwrite`` would replace
+        them anyway), so that :meth:`completed` only ever finds images written under the
+        current plan, also after an interrupt and a resume."""
+        for path in self._planned_paths():
+            if path.is_file() or path.is_symlink():
+                path.unlink()
 
     # --- paths and state
     def path_of(self, frame, camera, light) -> Path:

@@ -38,7 +38,7 @@ def glossy_bsdf_dict(maps):
     return bsdf
 
 
-def view_scene(mesh, camera, light, maps, exitance, spp=16, seed=0):
+def view_scene(mesh, camera, light, maps, exitance, spp=16, seed=0, interreflection=True):
     """The scene of one view: ``stokes(direct)``, the camera, its light, and the skin.
 
     Parameters
@@ -51,15 +51,21 @@ def view_scene(mesh, camera, light, maps, exitance, spp=16, seed=0):
         Glossy maps (see :data:`GLOSSY_MAPS`).
     exitance : (T, T) array
         Diffused exitance for the ``pexitance`` emitter.
+    interreflection : bool
+        With ``False``, ``direct`` takes no BSDF samples: the glossy lobes
+        then reflect only the (point) light, found by emitter sampling, and
+        not the ``pexitance`` glow of other texels, which only BSDF-sampled
+        rays find; the camera still sees that glow directly.
     """
     import mitsuba as mi
 
     bsdf = mi.load_dict(glossy_bsdf_dict(maps))
     emitter = mi.load_dict({"type": "pexitance", "exitance": map_texture(exitance),
                             "eta": map_texture(maps["eta"])})
+    direct = {"type": "direct"} if interreflection else {"type": "direct", "bsdf_samples": 0}
     return mi.load_dict({
         "type": "scene",
-        "integrator": {"type": "stokes", "inner": {"type": "direct"}},
+        "integrator": {"type": "stokes", "inner": direct},
         "sensor": camera.sensor_dict(spp, seed),
         "light": light.emitter_dict(),
         "skin": to_mitsuba(mesh, bsdf, emitter),

@@ -5,8 +5,9 @@ parameters and, through the two-layer skin model, per-texel layer totals
 (eq. 42) whose combination is the band's subsurface albedo (eq. 47); the
 coaxial light's transmitted irradiance is diffused in texture space through
 the layers' sum-of-Gaussians profiles (eq. 46) and rendered by
-``pexitance``; the camera records I0/I45/I90/I135 (or, with ``raw``, the
-noisy 12-bit mosaic of a polarization sensor). The geometry is
+``pexitance``, which the camera sees directly (glossy lobes reflect it only
+with ``interreflection``); the camera records I0/I45/I90/I135 (or, with
+``raw``, the noisy 12-bit mosaic of a polarization sensor). The geometry is
 the base mesh displaced by the displacement map; the capture stores the
 base mesh, as a multi-view-stereo reconstruction would give it.
 """
@@ -14,6 +15,7 @@ base mesh, as a multi-view-stereo reconstruction would give it.
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +35,21 @@ from polarbssrdf.synth.truth import TruthSettings, frame_maps, truth_maps
 
 OBJECTS = ("sphere", "face")
 ANALYSER = ("I0", "I45", "I90", "I135")
+SEED_LIMIT = 2**64
+"""Seeds are below this: NumPy's seeding takes any, and 64 bits keep capture.json readable."""
+
+
+def image_seed(seed, frame, camera_index, band_index):
+    """The 32-bit render seed of one image: ``mi.render`` takes a ``UInt32`` seed.
+
+    A hash of all four numbers (``numpy.random.SeedSequence``), so every
+    capture seed works and images get distinct sample patterns (two images of
+    a capture share one with probability about ``n_images**2 / 2**33``).
+    ``mi.render`` derives its gradient seed from this one
+    (``sample_tea_32(seed, 1)``), so ``seed != seed_grad`` holds.
+    """
+    sequence = np.random.SeedSequence([int(seed), int(frame), int(camera_index), int(band_index)])
+    return int(sequence.generate_state(1, np.uint32)[0])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,9 +71,16 @@ class SynthesisSettings:
     spp : int
         Samples per pixel.
     seed : int
-        Seed of the truth maps, the render noise and the sensor noise.
+        Seed of the truth maps, the render noise and the sensor noise, in
+        ``[0, 2**64)``; each image's render seed is derived from it
+        (:func:`image_seed`).
     raw : bool
         Write noisy raw sensor mosaics instead of analyser images.
+    interreflection : bool
+        Let the glossy lobes reflect the subsurface light leaving other
+        texels (found by BSDF sampling). Off by default: then subsurface light
+        reaches the camera only directly and glossy lobes reflect only the
+        camera's light, as in the per-texel model the inverse stages fit.
     """
 
     object: str = "face"
@@ -67,6 +91,7 @@ class SynthesisSettings:
     spp: int = 16
     seed: int = 0
     raw: bool = False
+    interreflection: bool = False
 
     def __post_init__(self):
         if self.object not in OBJECTS:
@@ -74,6 +99,8 @@ class SynthesisSettings:
         for name in ("views", "frames", "resolution", "texture", "spp"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be a positive integer")
+        if not 0 <= int(self.seed) < SEED_LIMIT:
+            raise ValueError(f"seed must be an integer in [0, 2**64), got {self.seed}")
         if self.raw and self.resolution % 2:
             raise ValueError("raw mosaics need an even resolution (2 x 2 polarizer cells)")
 
@@ -160,8 +187,9 @@ def render_frame_view(prepared, state, camera, rng=None):
     """
     settings = prepared.settings
     light = prepared.stage.light(prepared.stage.light_for_camera[camera.name])
+    # the sampler's own seed does not matter: every render passes its image_seed
     scene = view_scene(state.mesh, camera, light, state.maps, np.zeros_like(state.maps["eta"]),
-                       settings.spp, settings.seed)
+                       settings.spp, 0, interreflection=settings.interreflection)
     irradiance = transmitted_irradiance(scene, state.atlas, state.maps["eta"])
     camera_index = [c.name for c in prepared.stage.cameras].index(camera.name)
     channels, channel_names = {}, None
@@ -170,7 +198,7 @@ def render_frame_view(prepared, state, camera, rng=None):
                                     prepared.kernels[band_index], state.atlas)
         set_exitance(scene, exitance)
         # a distinct, reproducible sample pattern per image
-        seed = ((settings.seed * 1000 + state.index) * 100 + camera_index) * 100 + band_index
+        seed = image_seed(settings.seed, state.index, camera_index, band_index)
         images, channel_names = render_analyser_images(scene, settings.spp, seed, channel_names)
         if settings.raw:
             channels[f"{band.name}.raw"] = _raw_mosaic(images, rng)
@@ -184,10 +212,12 @@ def _raw_mosaic(images, rng):
     """Noisy 12-bit mosaic of a mono polarization sensor (IMX250MZR) from analyser images."""
     from polarbssrdf.capture import IMX250MZR, SensorNoise, mosaic_images, simulate_raw
 
-    radiance = mosaic_images(images, IMX250MZR)
+    # I(theta) = (S0 + S1 cos 2theta + S2 sin 2theta) / 2 can round to -1e-11 where S0 ~ |S1|
+    radiance = mosaic_images({name: np.maximum(values, 0.0) for name, values in images.items()},
+                             IMX250MZR)
     peak = max(float(np.percentile(radiance, 99.9)), 1e-12)
     noise = SensorNoise(electrons_per_radiance=0.8 * 10500 / peak)
-    return simulate_raw(np.maximum(radiance, 0.0), noise, rng).astype(np.float32)
+    return simulate_raw(radiance, noise, rng).astype(np.float32)
 
 
 FRAME_INTERVAL_S = 1.0 / 30.0
@@ -209,12 +239,19 @@ def capture_manifest(prepared):
     kind = "raw" if settings.raw else "analyser"
     frames = [plan_frame(index, index * FRAME_INTERVAL_S, np.eye(4), pairs, kind)
               for index in range(settings.frames)]
+    # everything the images depend on, so that a resume with other settings is refused
     metadata = {"generator": f"polarbssrdf {__version__} synth",
                 "settings": dataclasses.asdict(settings),
-                "skin": list(prepared.truth_settings.skin)}
+                "skin": list(prepared.truth_settings.skin),
+                "truth_settings": truth_settings_json(prepared.truth_settings)}
     return CaptureManifest(bands=prepared.bands, cameras=cameras, lights=lights, frames=frames,
                            mesh="mesh.obj", synthetic=True, truth="truth/truth.json",
                            metadata=metadata)
+
+
+def truth_settings_json(truth_settings):
+    """The truth settings as plain JSON (tuples as lists), as a settings file would hold them."""
+    return json.loads(json.dumps(dataclasses.asdict(truth_settings)))
 
 
 def truth_channels(state, bands):
@@ -258,7 +295,7 @@ def preview_tiles(channels, bands, camera_name):
     return tiles
 
 
-def write_preview(outdir, tiles, overwrite):
+def write_preview(outdir, tiles):
     """A contact sheet of the views (I0 next to I90, one exposure for all) as ``preview.png``."""
     from polarbssrdf.io.atomic import atomic_write_bytes
     from polarbssrdf.render.stokes_images import contact_sheet, png_bytes, tonemap_srgb
@@ -278,11 +315,16 @@ def synthesize(outdir, settings, bands=None, truth_settings=None, overwrite=Fals
                progress=True):
     """Render a synthetic capture with ground truth into ``outdir`` (see the module docstring).
 
-    Images are written one by one as they are rendered; with ``resume`` an
-    interrupted run continues where it stopped (same settings required).
-    ``preview.png`` shows frame 0 of every view rendered in this run (I0 and
-    I90, three bands as red, green and blue). Returns the path of the
-    finished ``capture.json``.
+    Images are written one by one as they are rendered, each atomically, and
+    ``capture.json`` only once all are there. Without ``resume`` everything
+    is rendered anew (``overwrite`` lets the run start over in a directory
+    that holds an earlier capture); with ``resume`` an interrupted run
+    continues where it stopped and reuses its finished images, which needs
+    the same settings (else :class:`~polarbssrdf.io.capture.PlanMismatchError`).
+    Either way the result is bit-identical to a fresh run into an empty
+    directory. ``preview.png`` shows frame 0 of every view (I0 and I90, three
+    bands as red, green and blue). Returns the path of the finished
+    ``capture.json``.
     """
     from tqdm import tqdm
 
@@ -294,10 +336,11 @@ def synthesize(outdir, settings, bands=None, truth_settings=None, overwrite=Fals
     manifest = capture_manifest(prepared)
     writer = CaptureWriter(outdir, manifest, overwrite=overwrite, resume=resume)
     writer.add_mesh(prepared.base_mesh)
-    done, truth_done = writer.completed(), writer.completed_truth()
+    # only a resumed run may reuse files: the writer checked that its plan is this one
+    done = writer.completed() if resume else set()
+    truth_done = writer.completed_truth() if resume else set()
     stage = prepared.stage
     total = settings.frames * len(stage.cameras)
-    tiles = {}
     with tqdm(total=total, desc="synth", unit="image", disable=not progress) as bar:
         for frame in range(settings.frames):
             state = None
@@ -311,12 +354,25 @@ def synthesize(outdir, settings, bands=None, truth_settings=None, overwrite=Fals
                 rng = np.random.default_rng([settings.seed, frame, camera_index])
                 channels = render_frame_view(prepared, state, camera, rng)
                 writer.add_image(frame, camera.name, light, channels)
-                if frame == 0:
-                    tiles.update(preview_tiles(channels, bands, camera.name))
                 bar.update()
             if frame not in truth_done:
                 state = state or prepare_frame(prepared, frame)
                 writer.add_truth(frame, truth_channels(state, bands))
     manifest_path = writer.finish()
-    write_preview(outdir, tiles, overwrite)
+    write_preview(outdir, written_preview_tiles(writer, stage, bands))
     return manifest_path
+
+
+def written_preview_tiles(writer, stage, bands):
+    """Preview tiles of frame 0 of every view, read back from the capture on disk.
+
+    Reading them (rather than keeping the rendered ones) makes the preview of
+    a resumed run the same as that of a fresh run.
+    """
+    from polarbssrdf.io.exr import read_exr
+
+    tiles = {}
+    for camera in stage.cameras:
+        channels, _ = read_exr(writer.path_of(0, camera.name, stage.light_for_camera[camera.name]))
+        tiles.update(preview_tiles(channels, bands, camera.name))
+    return tiles

@@ -27,6 +27,7 @@ DEFAULT_REFLECTANCE = {
     "displacement": (0.0, 0.1, -1.0, 1.0),  # mm
 }
 BIOPHYSICAL = ("C_m", "beta_m", "C_h_out", "C_h_in")
+DEFAULT_BIOPHYSICAL_STD = {"C_m": 0.004, "beta_m": 0.01, "C_h_out": 0.01, "C_h_in": 0.008}
 MAP_NAMES = tuple(DEFAULT_REFLECTANCE) + BIOPHYSICAL
 
 
@@ -51,8 +52,7 @@ class TruthSettings:
 
     reflectance: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_REFLECTANCE))
     skin: tuple = ("forehead", "II")
-    biophysical_std: dict = dataclasses.field(default_factory=lambda: {
-        "C_m": 0.004, "beta_m": 0.01, "C_h_out": 0.01, "C_h_in": 0.008})
+    biophysical_std: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_BIOPHYSICAL_STD))
     correlation_mm: float = 8.0
     hemoglobin_swing: float = 0.3
 
@@ -62,15 +62,26 @@ class TruthSettings:
         for name, value in self.reflectance.items():
             if name not in DEFAULT_REFLECTANCE:
                 raise ValueError(f"unknown reflectance map {name!r}; known: {list(DEFAULT_REFLECTANCE)}")
+            if len(value) != 4:
+                raise ValueError(f"{name}: expected [base, std, low, high], got {list(value)}")
             base, std, low, high = value
             if not (low <= base <= high) or std < 0:
                 raise ValueError(f"{name}: base {base} outside [{low}, {high}] or negative std")
+        if set(self.biophysical_std) != set(BIOPHYSICAL):
+            raise ValueError(f"biophysical_std must give {list(BIOPHYSICAL)}, got "
+                             f"{sorted(self.biophysical_std)}")
+        if any(std < 0 for std in self.biophysical_std.values()):
+            raise ValueError(f"biophysical_std must be >= 0, got {self.biophysical_std}")
         if self.correlation_mm <= 0:
             raise ValueError("correlation_mm must be > 0")
 
 
 def load_settings(path):
-    """Settings from a JSON file: any subset of the fields of :class:`TruthSettings`."""
+    """Settings from a JSON file: any subset of the fields of :class:`TruthSettings`.
+
+    ``reflectance`` and ``biophysical_std`` may give only some maps; the
+    others keep their defaults. The keys are documented in ``docs/synth.md``.
+    """
     from polarbssrdf.io.jsonfile import read_json_file
 
     path = pathlib.Path(path)
@@ -83,6 +94,12 @@ def load_settings(path):
     if "reflectance" in data:
         data["reflectance"] = {**DEFAULT_REFLECTANCE,
                                **{k: tuple(v) for k, v in data["reflectance"].items()}}
+    if "biophysical_std" in data:
+        unknown = set(data["biophysical_std"]) - set(BIOPHYSICAL)
+        if unknown:
+            raise ValueError(f"{path}: unknown biophysical maps {sorted(unknown)}; known: "
+                             f"{list(BIOPHYSICAL)}")
+        data["biophysical_std"] = {**DEFAULT_BIOPHYSICAL_STD, **data["biophysical_std"]}
     if "skin" in data:
         data["skin"] = tuple(data["skin"])
     return TruthSettings(**data)

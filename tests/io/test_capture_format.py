@@ -241,6 +241,58 @@ def test_non_empty_directory_is_refused_and_overwrite_keeps_foreign_files(writte
     assert np.array_equal(loaded["BA.I0"], new_images[path]["BA.I0"])
 
 
+def test_overwrite_starts_over_so_a_resume_reuses_nothing_of_the_earlier_capture(written, rng):
+    directory, manifest, images, truth = written
+    (directory / "notes.txt").write_text("mine")
+    fewer = _manifest(frames=1)  # frame 1 of the earlier capture is not in the new plan
+    writer = CaptureWriter(directory, fewer, overwrite=True)
+    # the earlier files at the new plan's paths are gone, so none passes for a finished one
+    assert writer.completed() == set() and writer.completed_truth() == set()
+    assert not (directory / "truth" / "truth.json").exists()
+    # files the new plan does not name are kept: foreign ones and the earlier frame 1
+    assert (directory / "notes.txt").read_text() == "mine"
+    assert (directory / manifest.frames[1].images[0].path).is_file()
+    frame, record = fewer.records()[0]
+    writer.add_image(frame, record.camera, record.light, images[record.path])
+    del writer  # interrupted
+    resumed = CaptureWriter(directory, fewer, resume=True)
+    assert resumed.completed() == {(frame.index, record.camera, record.light)}
+
+
+def test_resume_refusal_names_the_differences(tmp_path, rng):
+    from polarbssrdf.io.capture import PlanMismatchError
+
+    manifest = _manifest(mesh=None, truth=None)
+    CaptureWriter(tmp_path / "c", manifest)
+    other = CaptureManifest(bands=manifest.bands, cameras=manifest.cameras,
+                            lights=manifest.lights, frames=manifest.frames, mesh=None,
+                            synthetic=False, truth=None, metadata={"made_by": "another test"})
+    with pytest.raises(PlanMismatchError, match="different capture") as error:
+        CaptureWriter(tmp_path / "c", other, resume=True)
+    assert error.value.differences == [("manifest.metadata.made_by", "test", "another test")]
+    assert "manifest.metadata.made_by: 'test' -> 'another test'" in str(error.value)
+    assert isinstance(error.value, FileExistsError)
+
+
+def test_an_interrupted_image_write_leaves_no_file(tmp_path, rng, monkeypatch):
+    import polarbssrdf.io.exr as exr
+
+    manifest = _manifest(mesh=None, truth=None)
+    writer = CaptureWriter(tmp_path / "c", manifest)
+    frame, record = manifest.records()[0]
+
+    def write_half_and_stop(path, header, channels):
+        path.write_bytes(b"v/1\x01 half an EXR")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(exr, "_write_exr_file", write_half_and_stop)
+    with pytest.raises(KeyboardInterrupt):
+        writer.add_image(frame, record.camera, record.light, _images(manifest, rng)[record.path])
+    files = [p.name for p in (tmp_path / "c").rglob("*") if p.is_file()]
+    assert files == [PLAN_NAME]  # neither the image nor its temporary file
+    assert writer.completed() == set()
+
+
 # --------------------------------------------------------------------------- bad captures on disk
 def test_missing_image_file(written):
     directory, manifest, _, _ = written
