@@ -1,5 +1,70 @@
-"""Exceptions shared across the package."""
+"""Exceptions shared across the package, and the user-facing text of Mitsuba's errors."""
+
+from __future__ import annotations
+
+import re
+
+__all__ = ["CommandError", "is_plugin_error", "plugin_error_message"]
+
+_TRACEBACK_HEADER = "Traceback (most recent call last):"
+
+_SOURCE_TAG = re.compile(r"\[[\w.]+:\d+\]\s*")
+"""Mitsuba's ``[parser.cpp:1718] `` source-location tags, which mean nothing to a user."""
+
+_PLAIN_EXCEPTION_TYPES = ("ValueError",)
+"""Exception types whose name adds nothing: plugins raise them for invalid parameters."""
 
 
 class CommandError(RuntimeError):
     """An error the user can fix; the command line prints it without a traceback."""
+
+
+def is_plugin_error(error: BaseException) -> bool:
+    """Whether ``error`` is Mitsuba's wrapper around an exception raised in a Python plugin.
+
+    Mitsuba turns an exception raised in a Python plugin's ``__init__`` into a
+    ``RuntimeError`` whose text is its own context ("At FILE (line L, col C):
+    failed to instantiate bsdf plugin of type ...") followed by the whole
+    Python traceback.
+    """
+    return isinstance(error, RuntimeError) and _TRACEBACK_HEADER in str(error)
+
+
+def _exception_lines(traceback_text: str) -> list[str]:
+    """The final ``Type: message`` lines of a formatted traceback (its frames are indented)."""
+    lines = traceback_text.splitlines()
+    first = next((i for i, line in enumerate(lines) if line and not line[0].isspace()),
+                 len(lines))
+    return [line for line in lines[first:] if line.strip()]
+
+
+def plugin_error_message(error: BaseException) -> str:
+    """One line for the user from a Mitsuba error, without an embedded Python traceback.
+
+    Parameters
+    ----------
+    error:
+        Typically the ``RuntimeError`` of :func:`mitsuba.load_file` or
+        :func:`mitsuba.load_dict`. If a Python plugin raised in its
+        constructor, Mitsuba's text carries the traceback; only Mitsuba's
+        context (file, line, plugin) and the plugin's own message are kept.
+
+    Returns
+    -------
+    str
+        E.g. ``At scene.xml (line 53, col 10): failed to instantiate bsdf
+        plugin of type "pbssrdf": pbssrdf: parameter 'rho_sss' = 1.7 is
+        outside its valid range [0, 1]``. Errors without a traceback come
+        back as their text, minus Mitsuba's source-file tags.
+    """
+    text = str(error).strip()
+    context, header, traceback_text = text.rpartition(_TRACEBACK_HEADER)
+    if not header:
+        return _SOURCE_TAG.sub("", text)
+    message = " ".join(_exception_lines(traceback_text)) or "error in a Python plugin"
+    kind, sep, rest = message.partition(": ")
+    if sep and kind in _PLAIN_EXCEPTION_TYPES:
+        message = rest
+    # With nested plugins the context may itself hold an earlier traceback's header.
+    context = _SOURCE_TAG.sub("", context.split(_TRACEBACK_HEADER)[0]).strip().rstrip(":")
+    return f"{context}: {message}" if context else message

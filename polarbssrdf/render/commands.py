@@ -11,6 +11,12 @@ and writes into ``OUTDIR``:
 * PNG previews (:data:`polarbssrdf.render.stokes_images.PREVIEW_FILES`) and
   the contact sheet ``preview.png``.
 
+``--sensor`` picks the camera: its ``id`` in the XML, its index in the
+scene's sensor list (default 0, the first), or ``all``, which renders every
+sensor into its own subdirectory ``OUTDIR/<sensor id>/`` (``sensorNN`` for a
+sensor without an id) holding the same files. ``render.json`` records the
+sensor's index and id.
+
 Earlier results in ``OUTDIR`` are only replaced with ``--overwrite``; other
 files there are never touched. Every file is written atomically.
 """
@@ -24,7 +30,7 @@ import re
 import time
 from pathlib import Path
 
-from polarbssrdf.errors import CommandError
+from polarbssrdf.errors import CommandError, plugin_error_message
 
 EXR_FILE = "polarization.exr"
 """Name of the EXR image written into OUTDIR."""
@@ -36,6 +42,9 @@ RENDER_SCHEMA_VERSION = 1
 """Schema version of ``render.json`` and of the EXR's metadata."""
 
 DEFAULT_VARIANT = "llvm_ad_mono_polarized"
+
+ALL_SENSORS = "all"
+"""``--sensor`` value that renders every sensor of the scene, each into ``OUTDIR/<id>/``."""
 
 _DEFINE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -83,6 +92,10 @@ def register(subparsers) -> None:
                              "(repeatable; the last value of a name wins)")
     parser.add_argument("--seed", type=_integer_at_least(0), default=0,
                         help="sampler seed (default: 0)")
+    parser.add_argument("--sensor", default="0", metavar="ID|INDEX|all",
+                        help="the camera to render: its id in the XML, its index among the "
+                             "scene's sensors (default: 0, the first), or 'all' to render "
+                             "each sensor into OUTDIR/<sensor id>/")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the results of an earlier run in OUTDIR")
     parser.set_defaults(run=run)
@@ -202,12 +215,11 @@ def load_scene(path: Path, defines: dict[str, str]):
     try:
         return mi.load_file(str(path), **defines)
     except RuntimeError as error:
-        message = re.sub(r"^\[[^\]]*\]\s*", "", str(error).strip())
-        raise CommandError(f"cannot load scene '{path}': {message}") from None
+        raise CommandError(f"cannot load scene '{path}': {plugin_error_message(error)}") from None
 
 
-def check_scene(scene, path: Path) -> None:
-    """Check that the scene renders Stokes images: a ``stokes`` integrator and a usable film.
+def check_integrator(scene, path: Path) -> None:
+    """Check that the scene renders Stokes images: a ``stokes`` integrator and a sensor.
 
     Parameters
     ----------
@@ -224,19 +236,85 @@ def check_scene(scene, path: Path) -> None:
             '<integrator type="stokes"><integrator type="direct"/></integrator>')
     if len(scene.sensors()) == 0:
         raise CommandError(f"scene '{path}' has no sensor")
-    film = scene.sensors()[0].film()
+
+
+def sensor_name(sensor, index: int) -> str:
+    """The sensor's ``id`` in the XML, or ``sensorNN`` (its index) if it has none."""
+    return sensor.id() or f"sensor{index:02d}"
+
+
+def _sensor_list(sensors) -> str:
+    """``0 cam00, 1 cam01, ...``: the sensors a user can pick, for error messages."""
+    return ", ".join(f"{k} {sensor_name(s, k)}" for k, s in enumerate(sensors))
+
+
+def select_sensors(scene, choice: str, path: Path) -> list[tuple[int, str]]:
+    """The sensors that ``--sensor`` picks, as ``(index, name)`` pairs.
+
+    Parameters
+    ----------
+    scene:
+        The loaded scene (with at least one sensor).
+    choice:
+        A sensor id from the XML, an index into ``scene.sensors()``, or
+        :data:`ALL_SENSORS`. An id wins over an index of the same spelling.
+    path:
+        The scene file, for the error messages.
+    """
+    sensors = scene.sensors()
+    names = [sensor_name(s, k) for k, s in enumerate(sensors)]
+    text = choice.strip()
+    if text == ALL_SENSORS:
+        if len(set(names)) != len(names):  # each needs its own subdirectory
+            raise CommandError(f"scene '{path}': sensor ids are not unique ({', '.join(names)}); "
+                               "--sensor all writes OUTDIR/<sensor id>/ per sensor")
+        return list(enumerate(names))
+    if text in names:
+        index = names.index(text)
+        return [(index, names[index])]
+    if text.isdigit() and int(text) < len(sensors):
+        return [(int(text), names[int(text)])]
+    raise CommandError(f"scene '{path}' has no sensor '{choice}'; its sensors are (index id): "
+                       f"{_sensor_list(sensors)}; pass --sensor ID, INDEX or all")
+
+
+def check_film(sensor, label: str, path: Path, defines: dict[str, str]) -> None:
+    """Check that the sensor's film can be rendered: at least 1 x 1 pixels, not a ``specfilm``.
+
+    Parameters
+    ----------
+    sensor:
+        A sensor of the loaded scene (its film already has the ``-D`` values).
+    label:
+        How to name it in the error messages, e.g. ``"3 (cam03)"``.
+    path:
+        The scene file, for the error messages.
+    defines:
+        The ``-D`` scene parameters, named in the message when a size is wrong.
+    """
+    film = sensor.film()
     if film.class_name() == "SpecFilm":
         raise CommandError(f"scene '{path}' uses a 'specfilm', which does not work with "
                            "'stokes'; use 'hdrfilm'")
+    # A zero-sized film loads fine but crashes Dr.Jit in the render ("incompatible sizes").
+    for part, (width, height) in (("film", film.size()), ("film crop", film.crop_size())):
+        if width < 1 or height < 1:
+            given = ", ".join(f"-D {k}={v}" for k, v in defines.items())
+            hint = f" (with {given})" if given else ""
+            raise CommandError(f"scene '{path}': sensor {label} has a {part} of "
+                               f"{width} x {height} pixels{hint}; width and height must be "
+                               "at least 1")
 
 
-def render_scene(scene, spp: int | None, seed: int):
-    """Render the scene's first sensor and wait for the result.
+def render_sensor(scene, index: int, spp: int | None, seed: int):
+    """Render one sensor of the scene and wait for the result.
 
     Parameters
     ----------
     scene:
         A scene with a ``stokes`` integrator.
+    index:
+        Index of the sensor in ``scene.sensors()``.
     spp:
         Samples per pixel, or ``None`` for the sampler's own count.
     seed:
@@ -259,7 +337,7 @@ def render_scene(scene, spp: int | None, seed: int):
 
     from polarbssrdf.render.stokes_images import render_channel_names
 
-    sensor = scene.sensors()[0]
+    sensor = scene.sensors()[index]
     spp = int(spp) if spp is not None else int(sensor.sampler().sample_count())
     start = time.perf_counter()
     image = mi.render(scene, sensor=sensor, seed=seed, spp=spp)
@@ -269,8 +347,8 @@ def render_scene(scene, spp: int | None, seed: int):
     return np.array(image), render_channel_names(sensor.film()), spp, seconds
 
 
-def run_metadata(args, scene_path: Path, defines: dict, spp: int, shape: tuple[int, int],
-                 channels: list[str], timing: dict) -> dict:
+def run_metadata(args, scene_path: Path, defines: dict, sensor: dict, spp: int,
+                 shape: tuple[int, int], channels: list[str], timing: dict) -> dict:
     """The JSON record of a run (written to ``render.json`` and into the EXR).
 
     Parameters
@@ -281,6 +359,8 @@ def run_metadata(args, scene_path: Path, defines: dict, spp: int, shape: tuple[i
         The scene file.
     defines:
         The ``-D`` scene parameters.
+    sensor:
+        ``{"index": k, "id": name}`` of the rendered sensor.
     spp:
         Samples per pixel used.
     shape:
@@ -301,6 +381,7 @@ def run_metadata(args, scene_path: Path, defines: dict, spp: int, shape: tuple[i
         "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "scene": str(scene_path.resolve()),
         "variant": args.variant,
+        "sensor": sensor,
         "spp": spp,
         "seed": args.seed,
         "defines": defines,
@@ -315,47 +396,80 @@ def run_metadata(args, scene_path: Path, defines: dict, spp: int, shape: tuple[i
     }
 
 
-def run(args) -> int:
-    """Execute ``polarbssrdf render`` for parsed arguments; returns the exit status 0."""
+def sensor_outdirs(outdir: Path, sensors: list[tuple[int, str]], choice: str
+                   ) -> dict[int, Path]:
+    """Sensor index -> the directory its results go to: OUTDIR, or OUTDIR/<id>/ for ``all``."""
+    if choice.strip() != ALL_SENSORS:
+        return {index: outdir for index, _ in sensors}
+    for _, name in sensors:
+        if name in (".", "..") or "/" in name or "\\" in name:
+            raise CommandError(f"sensor id '{name}' cannot name a subdirectory of '{outdir}' "
+                               "(--sensor all); render it by index instead")
+    return {index: outdir / name for index, name in sensors}
+
+
+def render_one(args, scene, scene_path: Path, defines: dict, index: int, name: str,
+               outdir: Path, load_seconds: float, started: float) -> None:
+    """Render sensor ``index`` and write its EXR, previews and ``render.json`` into ``outdir``.
+
+    ``render.json`` is written last, so a directory with it holds a complete result.
+    ``started`` is the command's start (``time.perf_counter()``): ``timing_s.total``
+    counts from there, set-up included.
+    """
+    import mitsuba as mi
+
     from polarbssrdf.io import atomic_write_text, write_exr
     from polarbssrdf.render.stokes_images import polarization_channels, write_previews
 
-    start = time.perf_counter()
-    scene_path, outdir = Path(args.scene), Path(args.outdir)
-    defines = parse_defines(args.define)
     paths = output_paths(outdir)
-    if not scene_path.exists():
-        raise FileNotFoundError(f"scene file '{scene_path}' does not exist")
-    check_outputs(outdir, paths, scene_path, args.overwrite)
-    select_variant(args.variant)
-
-    import mitsuba as mi
-
-    load_start = time.perf_counter()
-    scene = load_scene(scene_path, defines)
-    check_scene(scene, scene_path)
-    load_seconds = time.perf_counter() - load_start
-    image, names, spp, render_seconds = render_scene(scene, args.spp, args.seed)
+    image, names, spp, render_seconds = render_sensor(scene, index, args.spp, args.seed)
     channels = polarization_channels(image, names, monochrome=bool(mi.is_monochromatic))
 
     write_start = time.perf_counter()
     outdir.mkdir(parents=True, exist_ok=True)
     timing = {"load": round(load_seconds, 4), "render": round(render_seconds, 4)}
-    metadata = run_metadata(args, scene_path, defines, spp, image.shape[:2], list(channels),
-                            timing)
+    metadata = run_metadata(args, scene_path, defines, {"index": index, "id": name}, spp,
+                            image.shape[:2], list(channels), timing)
     write_exr(paths["exr"], channels, metadata, overwrite=args.overwrite)
     previews, settings = write_previews(outdir, channels, overwrite=args.overwrite)
-    metadata["previews"] = {name: path.name for name, path in previews.items()}
+    metadata["previews"] = {key: path.name for key, path in previews.items()}
     metadata["preview_settings"] = settings
     metadata["files"] = {"exr": paths["exr"].name}
     timing["write"] = round(time.perf_counter() - write_start, 4)
-    timing["total"] = round(time.perf_counter() - start, 4)
+    timing["total"] = round(time.perf_counter() - started, 4)
     atomic_write_text(paths["json"], json.dumps(metadata, indent=2) + "\n",
                       overwrite=args.overwrite)
 
     height, width = image.shape[:2]
-    print(f"polarbssrdf render: {width}x{height}, {spp} spp, {args.variant}: "
-          f"wrote {paths['exr']}, {paths['json']}, {previews['preview']} and "
+    print(f"polarbssrdf render: sensor {index} ({name}), {width}x{height}, {spp} spp, "
+          f"{args.variant}: wrote {paths['exr']}, {paths['json']}, {previews['preview']} and "
           f"{len(previews) - 1} more previews in {outdir} "
           f"(render {render_seconds:.2f} s, total {timing['total']:.2f} s)")
+
+
+def run(args) -> int:
+    """Execute ``polarbssrdf render`` for parsed arguments; returns the exit status 0."""
+    started = time.perf_counter()
+    scene_path, outdir = Path(args.scene), Path(args.outdir)
+    defines = parse_defines(args.define)
+    if not scene_path.exists():
+        raise FileNotFoundError(f"scene file '{scene_path}' does not exist")
+    if args.sensor.strip() != ALL_SENSORS:  # fail before the slow variant set-up
+        check_outputs(outdir, output_paths(outdir), scene_path, args.overwrite)
+    select_variant(args.variant)
+
+    load_start = time.perf_counter()
+    scene = load_scene(scene_path, defines)
+    check_integrator(scene, scene_path)
+    sensors = select_sensors(scene, args.sensor, scene_path)
+    for index, name in sensors:
+        check_film(scene.sensors()[index], f"{index} ({name})", scene_path, defines)
+    outdirs = sensor_outdirs(outdir, sensors, args.sensor)
+    check_outputs(outdir, {}, scene_path, args.overwrite)  # OUTDIR itself must be a directory
+    for directory in outdirs.values():  # all of them before the first render
+        check_outputs(directory, output_paths(directory), scene_path, args.overwrite)
+    load_seconds = time.perf_counter() - load_start
+    for index, name in sensors:
+        render_one(args, scene, scene_path, defines, index, name, outdirs[index], load_seconds,
+                   started)
     return 0

@@ -13,12 +13,23 @@ Previews are 8-bit sRGB PNG arrays: the four analyser images tonemapped with
 one shared exposure, ``S1`` and ``S2`` in a diverging colormap over one
 symmetric range, DoLP on a fixed 0-1 scale, AoLP in a cyclic colormap over
 (-90, 90] degrees, and a labelled 2 x 2 contact sheet of the analyser images.
+The written S1, S2, DoLP and AoLP PNGs carry a title and a colour bar with
+tick labels (:func:`with_colour_bar`), so they can be read without
+``render.json``.
+
+The analyser previews show the render as a camera would record it (exposure
+1, values above 1 clip) whenever its white point, the 99.5th percentile of
+the analyser values, lies in ``[AS_RENDERED_WHITE_MIN, 1]``: then a
+scene's own exposure is what the preview shows. Renders outside that range
+(in other units, or over-exposed) are scaled so that their white point is
+displayed as white. ``render.json`` records which (``exposure_mode``).
 """
 
 from __future__ import annotations
 
 import io
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,12 +43,15 @@ from polarbssrdf.optics.stokes import (
 
 __all__ = [
     "ANALYSER_CHANNELS",
+    "AS_RENDERED_WHITE_MIN",
     "CONTACT_SHEET_FILE",
     "COLOUR_SUFFIXES",
+    "ColourScale",
     "PREVIEW_FILES",
     "STOKES_COMPONENTS",
     "analyser_images",
     "channel_suffixes",
+    "colour_scales",
     "contact_sheet",
     "false_colour",
     "luminance",
@@ -49,6 +63,7 @@ __all__ = [
     "split_stokes",
     "srgb_encode",
     "tonemap_srgb",
+    "with_colour_bar",
     "write_previews",
 ]
 
@@ -69,6 +84,13 @@ PREVIEW_FILES = {name: f"{name}.png" for name in (*ANALYSER_CHANNELS, "S1", "S2"
 
 CONTACT_SHEET_FILE = "preview.png"
 """File name of the 2 x 2 contact sheet of the analyser images."""
+
+AS_RENDERED_WHITE_MIN = 1.0 / 16.0
+"""Lowest white point (99.5th percentile of I0..I135) still previewed at exposure 1.
+
+Below it the render is too dark to judge as recorded (or in other units) and
+is auto-exposed instead; above 1 it would clip and is scaled down.
+"""
 
 
 # --------------------------------------------------------------------------
@@ -242,18 +264,24 @@ def preview_settings(channels: Mapping[str, np.ndarray], percentile: float = 99.
     -------
     dict
         ``exposure`` (multiplier applied to I0..I135 before the sRGB curve),
+        ``exposure_mode`` (``"as rendered"``: exposure 1, the white point lies
+        in ``[AS_RENDERED_WHITE_MIN, 1]``; ``"auto"``: the white point is
+        shown as white), ``white_point`` (the percentile value),
         ``stokes_range`` (S1 and S2 are shown over ``[-r, r]``) and
         ``s0_threshold`` (pixels with S0 at or below it have no DoLP/AoLP).
     """
     analysers = np.concatenate([luminance(channels, n).ravel() for n in ANALYSER_CHANNELS])
     positive = analysers[analysers > 0]
     white = float(np.percentile(positive, percentile)) if positive.size else 0.0
+    as_rendered = white == 0.0 or AS_RENDERED_WHITE_MIN <= white <= 1.0
     linear = np.concatenate([np.abs(luminance(channels, n)).ravel() for n in ("S1", "S2")])
     linear = linear[linear > 0]
     stokes_range = float(np.percentile(linear, percentile)) if linear.size else 0.0
     s0 = luminance(channels, "S0")
     return {
-        "exposure": 1.0 / white if white > 0 else 1.0,
+        "exposure": 1.0 if as_rendered else 1.0 / white,
+        "exposure_mode": "as rendered" if as_rendered else "auto",
+        "white_point": white,
         "stokes_range": stokes_range if stokes_range > 0 else 1.0,
         "s0_threshold": 1e-6 * float(np.max(s0)) if np.max(s0) > 0 else 0.0,
         "percentile": percentile,
@@ -319,6 +347,54 @@ def false_colour(values: np.ndarray, cmap: str, vmin: float, vmax: float,
     return out
 
 
+@dataclass(frozen=True)
+class ColourScale:
+    """How a scalar preview maps values to colours, and how its colour bar is labelled.
+
+    Attributes
+    ----------
+    cmap:
+        Matplotlib colormap name.
+    vmin, vmax:
+        Values at the two ends of the colormap.
+    title:
+        Quantity and unit, drawn above the preview.
+    ticks:
+        ``(value, label)`` pairs drawn beside the colour bar.
+    """
+
+    cmap: str
+    vmin: float
+    vmax: float
+    title: str
+    ticks: tuple[tuple[float, str], ...]
+
+
+def _signed_ticks(r: float) -> tuple[tuple[float, str], ...]:
+    """Ticks at -r, -r/2, 0, r/2, r with two significant digits."""
+    return tuple((v, "0" if v == 0 else f"{v:.2g}") for v in (-r, -0.5 * r, 0.0, 0.5 * r, r))
+
+
+def colour_scales(settings: Mapping) -> dict[str, ColourScale]:
+    """The colour scales of the false-colour previews ``S1, S2, DoLP, AoLP``.
+
+    Parameters
+    ----------
+    settings:
+        The output of :func:`preview_settings` (its ``stokes_range``).
+    """
+    r = float(settings["stokes_range"])
+    degrees = tuple((np.deg2rad(d), f"{d}\u00b0") for d in (-90, -45, 0, 45, 90))
+    return {
+        "S1": ColourScale("RdBu_r", -r, r, "S1 = I0 - I90 [radiance]", _signed_ticks(r)),
+        "S2": ColourScale("RdBu_r", -r, r, "S2 = I45 - I135 [radiance]", _signed_ticks(r)),
+        "DoLP": ColourScale("viridis", 0.0, 1.0, "DoLP [0-1]",
+                            tuple((v, f"{v:g}") for v in (0.0, 0.25, 0.5, 0.75, 1.0))),
+        "AoLP": ColourScale("twilight", -0.5 * np.pi, 0.5 * np.pi,
+                            "AoLP [deg from image right]", degrees),
+    }
+
+
 def preview_images(channels: Mapping[str, np.ndarray], settings: Mapping) -> dict[str, np.ndarray]:
     """All preview images of a render, as uint8 H x W x 3 sRGB arrays.
 
@@ -340,15 +416,14 @@ def preview_images(channels: Mapping[str, np.ndarray], settings: Mapping) -> dic
     """
     previews = {name: tonemap_srgb(_colour_image(channels, name), settings["exposure"])
                 for name in ANALYSER_CHANNELS}
-    r = settings["stokes_range"]
     S0, S1, S2 = (luminance(channels, n) for n in ("S0", "S1", "S2"))
-    previews["S1"] = false_colour(S1, "RdBu_r", -r, r)
-    previews["S2"] = false_colour(S2, "RdBu_r", -r, r)
     lit = S0 > settings["s0_threshold"]
-    dolp = np.asarray(degree_of_linear_polarization(S0, S1, S2))
-    aolp = np.asarray(angle_of_linear_polarization(S1, S2))
-    previews["DoLP"] = false_colour(dolp, "viridis", 0.0, 1.0, mask=lit)
-    previews["AoLP"] = false_colour(aolp, "twilight", -0.5 * np.pi, 0.5 * np.pi, mask=lit)
+    values = {"S1": (S1, None), "S2": (S2, None),
+              "DoLP": (np.asarray(degree_of_linear_polarization(S0, S1, S2)), lit),
+              "AoLP": (np.asarray(angle_of_linear_polarization(S1, S2)), lit)}
+    for name, scale in colour_scales(settings).items():
+        image, mask = values[name]
+        previews[name] = false_colour(image, scale.cmap, scale.vmin, scale.vmax, mask=mask)
     return previews
 
 
@@ -410,6 +485,62 @@ def contact_sheet(tiles: Mapping[str, np.ndarray], columns: int = 2, min_tile: i
     return np.asarray(sheet)
 
 
+def with_colour_bar(image: np.ndarray, scale: ColourScale, min_height: int = 160,
+                    title_height: int = 16, bar_width: int = 12) -> np.ndarray:
+    """A false-colour preview with its title above and a labelled colour bar on the right.
+
+    Parameters
+    ----------
+    image:
+        uint8 H x W x 3 false-colour image made with ``scale``.
+    scale:
+        Its colour scale (:func:`colour_scales`).
+    min_height:
+        Small images are enlarged (nearest neighbour, integer factor) to at
+        least this height in pixels, so that tick labels fit beside them.
+    title_height:
+        Height in pixels of the title strip.
+    bar_width:
+        Width in pixels of the colour bar.
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8 RGB image, larger than ``image``.
+    """
+    import matplotlib
+    from PIL import Image, ImageDraw
+
+    height, width = image.shape[:2]
+    factor = max(1, -(-min_height // height))
+    font = _label_font(11)
+    label_width = max(int(np.ceil(font.getlength(text))) for _, text in scale.ticks)
+    margin = 6
+    tick, gap = 3, 3  # tick mark, then a gap so that '0' does not read as '-0'
+    panel = margin + bar_width + tick + gap + label_width + margin
+    title_width = int(np.ceil(font.getlength(scale.title))) + 2 * 4
+    canvas_w = max(width * factor + panel, title_width)
+    canvas = Image.new("RGB", (canvas_w, title_height + height * factor), (40, 40, 40))
+    draw = ImageDraw.Draw(canvas)
+    draw.text((4, 2), scale.title, fill=(235, 235, 235), font=font)
+    enlarged = Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8), "RGB")
+    canvas.paste(enlarged.resize((width * factor, height * factor), Image.NEAREST),
+                 (0, title_height))
+
+    # The bar spans the image height with vmax at the top, like a value axis.
+    bar_h = height * factor - 2 * margin
+    top, left = title_height + margin, width * factor + margin
+    t = np.linspace(1.0, 0.0, bar_h)[:, None]
+    colours = np.rint(255.0 * matplotlib.colormaps[scale.cmap](t)[..., :3]).astype(np.uint8)
+    canvas.paste(Image.fromarray(np.repeat(colours, bar_width, axis=1), "RGB"), (left, top))
+    for value, text in scale.ticks:
+        y = top + (scale.vmax - value) / (scale.vmax - scale.vmin) * (bar_h - 1)
+        draw.line([(left + bar_width, y), (left + bar_width + tick - 1, y)], fill=(235, 235, 235))
+        draw.text((left + bar_width + tick + gap, y), text, fill=(235, 235, 235), font=font,
+                  anchor="lm")
+    return np.asarray(canvas)
+
+
 def png_bytes(image: np.ndarray) -> bytes:
     """PNG encoding of a uint8 H x W x 3 image."""
     from PIL import Image
@@ -422,6 +553,9 @@ def png_bytes(image: np.ndarray) -> bytes:
 def write_previews(directory: str | Path, channels: Mapping[str, np.ndarray],
                    overwrite: bool = False) -> tuple[dict[str, Path], dict]:
     """Write all PNG previews of a render into ``directory``, each atomically.
+
+    The analyser PNGs have the render's size; S1, S2, DoLP and AoLP carry a
+    title and a colour bar (:func:`with_colour_bar`).
 
     Parameters
     ----------
@@ -442,6 +576,8 @@ def write_previews(directory: str | Path, channels: Mapping[str, np.ndarray],
     directory = Path(directory)
     settings = preview_settings(channels)
     previews = preview_images(channels, settings)
+    for name, scale in colour_scales(settings).items():
+        previews[name] = with_colour_bar(previews[name], scale)
     paths = {}
     for name, image in previews.items():
         paths[name] = atomic_write_bytes(directory / PREVIEW_FILES[name], png_bytes(image),

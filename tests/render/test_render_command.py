@@ -206,3 +206,143 @@ def test_previews_of_a_black_render_do_not_fail():
     for image in previews.values():
         assert image.shape == (8, 8, 3) and image.dtype == np.uint8
     assert previews["I0"].max() == 0 and previews["DoLP"].max() == 0
+
+
+# --------------------------------------------------------------------------
+# Issue 8: film sizes, plugin errors, sensors, exposure, colour bars
+# --------------------------------------------------------------------------
+
+LIGHTSTAGE = REPO / "scenes" / "lightstage.xml"
+TINY = ["-D", "resolution=24", "-D", "spp=2"]
+
+
+def test_zero_sized_film_is_a_clear_error(tmp_path, capsys):
+    status, _, err = run_cli(capsys, "render", SPHERE, tmp_path / "o", "-D", "resolution=0")
+    assert status == 2, err
+    assert "0 x 0 pixels" in err and "at least 1" in err and "-D resolution=0" in err
+    assert "Traceback" not in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+    scene = write_scene(tmp_path, "narrow.xml", '<integer name="width" value="$resolution"/>',
+                        '<integer name="width" value="0"/>')
+    status, _, err = run_cli(capsys, "render", scene, tmp_path / "o", *SMALL)
+    assert status == 2 and "sensor 0 (sensor00) has a film of 0 x 32 pixels" in err
+
+
+def write_scene(tmp_path, name, old, new):
+    """A copy of scenes/sphere.xml with one piece of text replaced."""
+    text = SPHERE.read_text()
+    assert old in text
+    scene = tmp_path / name
+    scene.write_text(text.replace(old, new))
+    return scene
+
+
+@pytest.mark.parametrize("name, old, new, message", [
+    ("parallel.xml", '<vector name="polarization_axis" x="1" y="0" z="0"/>',
+     '<vector name="polarization_axis" x="0" y="0" z="1"/>',
+     "ppoint: 'polarizer_normal' must not be parallel to 'polarization_axis'"),
+    ("albedo.xml", '<float name="rho_sss" value="$rho_sss"/>',
+     '<float name="rho_sss" value="1.7"/>',
+     "pbssrdf: parameter 'rho_sss' = 1.7 is outside its valid range [0, 1]"),
+])
+def test_plugin_errors_show_the_plugin_message_without_traceback(tmp_path, capsys, name, old,
+                                                                  new, message):
+    scene = write_scene(tmp_path, name, old, new)
+    status, _, err = run_cli(capsys, "render", scene, tmp_path / "o", *TINY)
+    assert status == 2
+    assert message in err and name in err and "line " in err  # where, and what
+    assert "Traceback" not in err and 'File "' not in err
+    assert err.count("\n") <= 2 and err.startswith("polarbssrdf render: error: cannot load scene")
+
+
+def read_record(outdir):
+    return json.loads((outdir / "render.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def lightstage_runs(tmp_path_factory):
+    """Tiny renders of scenes/lightstage.xml: the default sensor, --sensor 3, --sensor cam05."""
+    root = tmp_path_factory.mktemp("lightstage")
+    runs = {}
+    for key, extra in (("default", []), ("3", ["--sensor", "3"]), ("cam05", ["--sensor", "cam05"])):
+        runs[key] = root / key
+        assert main(["render", str(LIGHTSTAGE), str(runs[key]), *TINY, *extra]) == 0
+    return runs
+
+
+def test_sensor_is_chosen_by_index_or_id_and_recorded(lightstage_runs):
+    assert read_record(lightstage_runs["default"])["sensor"] == {"index": 0, "id": "cam00"}
+    assert read_record(lightstage_runs["3"])["sensor"] == {"index": 3, "id": "cam03"}
+    assert read_record(lightstage_runs["cam05"])["sensor"] == {"index": 5, "id": "cam05"}
+    images = {key: read_exr(path / "polarization.exr")[0]["S0"]
+              for key, path in lightstage_runs.items()}
+    for key in ("3", "cam05"):
+        assert np.abs(images[key] - images["default"]).max() > 0.1 * images["default"].max()
+
+
+@pytest.mark.parametrize("sensor", ["cam99", "8", "-1", ""])
+def test_unknown_sensor_lists_the_available_ones(tmp_path, capsys, sensor):
+    status, _, err = run_cli(capsys, "render", LIGHTSTAGE, tmp_path / "o", *TINY,
+                             f"--sensor={sensor}")
+    assert status == 2 and f"no sensor '{sensor}'" in err
+    assert all(f"{k} cam0{k}" in err for k in range(8))
+    assert not (tmp_path / "o").exists()
+
+
+def test_sensor_all_renders_each_sensor_into_its_own_directory(tmp_path, capsys):
+    status, out, err = run_cli(capsys, "render", LIGHTSTAGE, tmp_path / "o", "-D",
+                               "resolution=8", "-D", "spp=1", "--sensor", "all")
+    assert status == 0, err
+    names = [f"cam{k:02d}" for k in range(8)]
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == names
+    for k, name in enumerate(names):
+        assert read_record(tmp_path / "o" / name)["sensor"] == {"index": k, "id": name}
+    assert out.count("\n") == 8
+    # A second run refuses before rendering anything; a sensor without an id is 'sensorNN'.
+    status, _, err = run_cli(capsys, "render", LIGHTSTAGE, tmp_path / "o", "--sensor", "all")
+    assert status == 2 and "--overwrite" in err
+    assert run_cli(capsys, "render", SPHERE, tmp_path / "s", *SMALL, "--sensor", "all")[0] == 0
+    assert read_record(tmp_path / "s" / "sensor00")["sensor"] == {"index": 0, "id": "sensor00"}
+
+
+def test_lightstage_scene_is_exposed_without_clipping(lightstage_runs):
+    """The face's 99th-percentile I0 is 0.5-0.8 and the preview shows it as rendered."""
+    outdir = lightstage_runs["default"]
+    channels, _ = read_exr(outdir / "polarization.exr")
+    face = lit_pixels(channels["S0"])
+    assert face.sum() > 50
+    assert 0.5 <= np.percentile(channels["I0"][face], 99) <= 0.8
+    settings = read_record(outdir)["preview_settings"]
+    assert settings["exposure_mode"] == "as rendered" and settings["exposure"] == 1.0
+    with Image.open(outdir / "I0.png") as image:
+        preview = np.asarray(image)[..., 0][face]
+    assert (preview >= 250).mean() < 0.01  # was 16% with the automatic exposure
+
+
+def test_auto_exposure_for_renders_outside_the_displayable_range():
+    rng = np.random.default_rng(0)
+    S0 = rng.uniform(1.0, 2.0, (8, 8)).astype(np.float32)
+    zeros = np.zeros_like(S0)
+    channels = {"I0": S0 / 2, "I45": S0 / 2, "I90": S0 / 2, "I135": S0 / 2,
+                "S0": S0, "S1": zeros, "S2": zeros, "S3": zeros}
+    for scale, mode in ((1.0, "as rendered"), (10.0, "auto"), (1e-3, "auto")):
+        settings = preview_settings({k: v * scale for k, v in channels.items()})
+        assert settings["exposure_mode"] == mode
+        white = settings["white_point"]
+        assert settings["exposure"] == (1.0 if mode == "as rendered" else pytest.approx(1 / white))
+
+
+def test_false_colour_previews_have_a_labelled_colour_bar(sphere_run):
+    record = json.loads((sphere_run / "render.json").read_text())
+    for name in ("S1", "S2", "DoLP", "AoLP"):
+        with Image.open(sphere_run / PREVIEW_FILES[name]) as image:
+            pixels = np.asarray(image)
+        # Enlarged for readable labels, with a title strip and a bar on the right.
+        assert pixels.shape[0] >= 160 and pixels.shape[1] > pixels.shape[0]
+        assert record["previews"][name] == PREVIEW_FILES[name]
+    with Image.open(sphere_run / PREVIEW_FILES["DoLP"]) as image:
+        pixels = np.asarray(image).astype(int)
+    # The bar holds the whole viridis range: its top (DoLP 1) is yellow, its bottom dark violet.
+    yellow = np.all(np.abs(pixels - [253, 231, 37]) <= 6, axis=-1)
+    violet = np.all(np.abs(pixels - [68, 1, 84]) <= 6, axis=-1)
+    assert yellow[:, 32 * 5:].sum() > 20 and violet[:, 32 * 5:].sum() > 20
