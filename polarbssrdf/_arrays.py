@@ -28,11 +28,32 @@ def take(map2d, flat_index):
     import drjit as dr
 
     Array = type(map2d.array)
-    values = dr.gather(Array, map2d.array, dr.uint32_array_t(Array)(flat_index.astype(np.uint32)))
+    values = dr.gather(Array, map2d.array, to_jit(dr.uint32_array_t(Array), flat_index, np.uint32))
     return type(map2d)(values, shape)
+
+
+def aligned_copy(values, dtype=None):
+    """A C-contiguous copy of ``values`` whose buffer starts on a 64-byte boundary.
+
+    Dr.Jit maps NumPy buffers without copying and records their alignment in
+    the kernels that read them; arrays at varying alignments make otherwise
+    identical kernels hash differently and compile again at every call.
+    """
+    values = np.asarray(values, dtype=dtype)
+    buffer = np.empty(values.nbytes + 64, np.uint8)
+    offset = (-buffer.ctypes.data) % 64
+    out = buffer[offset:offset + values.nbytes].view(values.dtype).reshape(values.shape)
+    out[...] = values
+    return out
+
+
+def to_jit(array_type, values, dtype=None):
+    """``array_type`` (a Dr.Jit array or tensor type) holding a 64-byte aligned copy of ``values``."""
+    return array_type(aligned_copy(values, dtype))
 
 
 def constant_like(map2d, values):
     """A NumPy (T, T) float32 array as the same kind of map as ``map2d``."""
-    values = np.ascontiguousarray(values, dtype=np.float32)
-    return values if is_numpy(map2d) else type(map2d)(values)
+    if is_numpy(map2d):
+        return np.ascontiguousarray(values, dtype=np.float32)
+    return to_jit(type(map2d), values, np.float32)

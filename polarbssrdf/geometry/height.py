@@ -31,36 +31,52 @@ def height_gradient(height):
 
 
 def normals_from_height(height, atlas):
-    """Unit normals of the surface displaced by ``height`` along the mesh normal; eq. 25.
+    """Unit normals of the surface displaced by ``height`` along the shading normal; eq. 25.
 
-    ``n ~ (dp/du + dH/du n0) x (dp/dv + dH/dv n0)``, the cross-product form of
-    eq. 25 with ``s_u t_u = dp/du`` and ``s_v t_v = dp/dv`` from the atlas.
-    (The supplement's matrix form of eq. 25 scales ``dH/du`` by ``s_u`` where
-    the cross product gives ``s_v``; the two agree only for square texels, and
-    the cross product is the derivative of the displaced surface.)
+    Built in the shading frame of each texel: with ``n0`` the interpolated
+    (shading) normal and ``P = I - n0 n0^T`` the projection onto its plane,
+
+        ``n ~ (P dp/du + dH/du n0) x (P dp/dv + dH/dv n0)``,
+
+    oriented like ``n0``. At ``H = 0`` this is ``n0`` itself (the atlas'
+    :attr:`~polarbssrdf.geometry.TexelAtlas.normal`, what the renderer shades
+    with), not the triangle's flat normal ``dp/du x dp/dv``, which differs from
+    it by degrees on a coarse mesh. ``P dp/du`` and ``P dp/dv`` play the roles
+    of ``s_u t_u`` and ``s_v t_v`` of eq. 25. (The supplement's matrix form of
+    eq. 25 scales ``dH/du`` by ``s_u`` where the cross product gives ``s_v``;
+    the two agree only for square texels, and the cross product is the
+    derivative of the displaced surface, so the cross-product form is used.)
+    The term ``H dn0/du`` of the exact derivative (curvature times height) is
+    neglected, as in eq. 25.
 
     Parameters
     ----------
     height : (T, T) array (NumPy, or Dr.Jit TensorXf for autodiff)
-        Displacement along the mesh normal, mm.
+        Displacement along the shading normal, mm.
     atlas : TexelAtlas
         Surface frame per texel.
 
     Returns
     -------
     (T, T, 3) NumPy array, or a tuple of three (T, T) tensors for Dr.Jit input.
+    Texels off the mesh get ``atlas.normal`` (NumPy path).
     """
     dH_du, dH_dv = height_gradient(height)
-    n0, a, b = atlas.normal, atlas.dp_du, atlas.dp_dv
+    n0 = atlas.normal.astype(np.float64)
+    n0 /= np.maximum(np.linalg.norm(n0, axis=-1, keepdims=True), 1e-30)
+    # tangents projected onto the shading normal's plane: P dp/du x P dp/dv is parallel to n0
+    a = atlas.dp_du - np.sum(atlas.dp_du * n0, axis=-1, keepdims=True) * n0
+    b = atlas.dp_dv - np.sum(atlas.dp_dv * n0, axis=-1, keepdims=True) * n0
     # Mitsuba's v runs against the OBJ's (see polarbssrdf.geometry), which turns
-    # dp/du x dp/dv inward: orient by the undisplaced surface.
+    # dp/du x dp/dv inward: orient by the undisplaced surface. (The projection
+    # keeps det(dp/du, dp/dv, n0), so the sign is the unprojected one.)
     orientation = np.where(np.sum(np.cross(a, b) * n0, axis=-1) < 0, -1.0, 1.0)
     if isinstance(height, np.ndarray):
         du = a + dH_du[..., None] * n0
         dv = b + dH_dv[..., None] * n0
         n = np.cross(du, dv) * orientation[..., None]
         n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-30)
-        return np.where(atlas.valid[..., None], n, n0)
+        return np.where(atlas.valid[..., None], n, atlas.normal)
     import drjit as dr
 
     Tensor = type(height)
@@ -70,7 +86,7 @@ def normals_from_height(height, atlas):
 
     du = [component(a, k) + dH_du * component(n0, k) for k in range(3)]
     dv = [component(b, k) + dH_dv * component(n0, k) for k in range(3)]
-    sign = Tensor(orientation.astype(np.float32))
+    sign = constant_like(height, orientation)
     n = [du[1] * dv[2] - du[2] * dv[1], du[2] * dv[0] - du[0] * dv[2], du[0] * dv[1] - du[1] * dv[0]]
     length = dr.sqrt(dr.maximum(n[0] * n[0] + n[1] * n[1] + n[2] * n[2], 1e-30))
     return tuple(c * sign / length for c in n)
