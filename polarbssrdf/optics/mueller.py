@@ -92,7 +92,7 @@ def coordinate_system(n):
     s = Array3f(dr.mulsign(dr.square(n.x) * a, n.z) + 1.0,
                 dr.mulsign(b, n.z),
                 -dr.mulsign(n.x, n.z))
-    t = Array3f(b, dr.mulsign(dr.square(n.y) * a, n.z) + 1.0, -n.y)
+    t = Array3f(b, sign + dr.square(n.y) * a, -n.y)
     return s, t
 
 

@@ -2,7 +2,11 @@
 
 The reference is an independent path: Mitsuba's ``stokes(direct)`` integrator
 with the plugins, its own light sampling, Stokes frames and sensor frame. The
-model is evaluated at the pixel-centre rays of the same camera.
+model is evaluated at the pixel-centre rays of the same camera. The whole
+scene is turned by a generic rotation: with axis-aligned cameras and
+polarizers the Stokes frames line up and frame errors cancel (an earlier
+version of ``coordinate_system`` passed that way and was wrong for half the
+normals).
 """
 
 import drjit as dr
@@ -13,14 +17,29 @@ import pytest
 PARAMS = dict(eta=1.45, rho_s=0.8, alpha_s=0.35, rho_ss=0.3, alpha_ss=0.9)
 RHO_SSS = 0.6
 RESOLUTION = 64
-CAMERA = np.array([0.0, 0.0, 400.0])
-LIGHT = np.array([40.0, 0.0, 400.0])  # 5.7 degrees off the camera axis
+
+
+def _rotation(x, y, z):
+    cx, sx, cy, sy, cz, sz = np.cos(x), np.sin(x), np.cos(y), np.sin(y), np.cos(z), np.sin(z)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+ROTATION = _rotation(0.7, -0.4, 1.1)
+CAMERA = ROTATION @ [0.0, 0.0, 400.0]
+UP = ROTATION @ [0.0, 1.0, 0.0]
+LIGHT = ROTATION @ [40.0, 0.0, 400.0]  # 5.7 degrees off the camera axis, along image x
+POLARIZATION_AXIS = ROTATION @ [1.0, 0.0, 0.0]  # camera right: light polarized along image x
+POLARIZER_NORMAL = ROTATION @ [0.0, 0.0, -1.0]  # the sheet faces along the camera axis
 
 
 @pytest.fixture(scope="module")
 def rendered_sphere():
     mi.set_variant("llvm_ad_mono_polarized")
-    to_world = mi.ScalarTransform4f().look_at(origin=CAMERA.tolist(), target=[0, 0, 0], up=[0, 1, 0])
+    to_world = mi.ScalarTransform4f().look_at(origin=CAMERA.tolist(), target=[0, 0, 0],
+                                              up=UP.tolist())
     scene = mi.load_dict({
         "type": "scene",
         "integrator": {"type": "stokes", "inner": {"type": "direct"}},
@@ -29,7 +48,8 @@ def rendered_sphere():
                    "film": {"type": "hdrfilm", "width": RESOLUTION, "height": RESOLUTION,
                             "pixel_format": "luminance", "rfilter": {"type": "box"}}},
         "light": {"type": "ppoint", "position": LIGHT.tolist(), "intensity": 4e4,
-                  "polarization_axis": [1, 0, 0], "polarizer_normal": [0, 0, -1]},
+                  "polarization_axis": POLARIZATION_AXIS.tolist(),
+                  "polarizer_normal": POLARIZER_NORMAL.tolist()},
         "ball": {"type": "sphere", "radius": 50.0,
                  "bsdf": {"type": "pbssrdf", "rho_sss": RHO_SSS, **PARAMS}},
     })
@@ -68,9 +88,9 @@ def test_model_matches_mitsuba_render(rendered_sphere):
     distance = np.linalg.norm(to_light_vec, axis=-1)
     to_light = to_light_vec / distance[:, None]
     # ppoint's dichroic sheet: absorption axis b = normal x axis, field = d x b
-    absorption = np.cross([0.0, 0.0, -1.0], [1.0, 0.0, 0.0])
+    absorption = np.cross(POLARIZER_NORMAL, POLARIZATION_AXIS)
     field = _unit(np.cross(-to_light, absorption))
-    camera_basis = _unit(np.cross(ray_d, [0.0, 1.0, 0.0]))  # stokes integrator: d x up
+    camera_basis = _unit(np.cross(ray_d, UP))  # stokes integrator: d x up
     # the fully lit part of the sphere, away from the silhouette
     keep = hit & (np.sum(n * to_camera, axis=-1) > 0.3)
     Float, Array3f = mi.Float, mi.Vector3f
@@ -86,19 +106,20 @@ def test_model_matches_mitsuba_render(rendered_sphere):
                                                 for v in PARAMS.values()])
     predicted = [np.array(image) for image in stokes.analyser_images(RHO_SSS)]
     reference = [images[name].ravel()[keep] for name in ("I0", "I45", "I90", "I135")]
-    scale = max(float(np.max(reference[0])), 1e-12)
-    for name, ours, theirs in zip(("I0", "I45", "I90", "I135"), predicted, reference):
-        error = np.abs(ours - theirs) / scale
-        # pixel-centre prediction vs a pixel-area average: second-order differences only
-        assert np.median(error) < 2e-3, name
-        assert np.percentile(error, 99) < 2e-2, name
-    # the polarization images are not trivially equal: the model sees the differences
-    I_s = reference[0] - reference[2]
-    I_zeta = reference[3] - reference[1]
-    assert np.percentile(np.abs(I_s), 99) > 0.05 * scale
-    assert np.percentile(np.abs(I_zeta), 99) > 0.005 * scale
-    pred_zeta = predicted[3] - predicted[1]
-    assert np.corrcoef(pred_zeta, I_zeta)[0, 1] > 0.99
+    mean_sss = np.mean(2 * reference[2])
+
+    def separations(I0, I45, I90, I135):
+        return {"I_sss": 2 * I90, "I_zeta": I135 - I45, "I_s": I0 - I90}
+
+    ours, theirs = separations(*predicted), separations(*reference)
+    rms = {k: np.sqrt(np.mean((ours[k] - theirs[k]) ** 2)) for k in ours}
+    signal = {k: np.sqrt(np.mean(theirs[k] ** 2)) for k in theirs}
+    # the polarization images are small but not trivially so: the test sees them
+    assert signal["I_zeta"] > 0.01 * mean_sss and signal["I_s"] > 0.02 * mean_sss
+    # pixel-centre prediction vs a pixel-area average: second-order differences only
+    assert rms["I_sss"] < 5e-3 * mean_sss
+    assert rms["I_zeta"] < 0.02 * signal["I_zeta"]
+    assert rms["I_s"] < 0.02 * signal["I_s"]
 
 
 def test_coaxial_approximation_differs_with_offset_light(rendered_sphere):
@@ -116,11 +137,11 @@ def test_coaxial_approximation_differs_with_offset_light(rendered_sphere):
 
     to_light = LIGHT - p
     distance = np.linalg.norm(to_light, axis=-1)
-    absorption = np.cross([0.0, 0.0, -1.0], [1.0, 0.0, 0.0])
+    absorption = np.cross(POLARIZER_NORMAL, POLARIZATION_AXIS)
     geometry = ViewGeometry(vec(_unit(CAMERA - p)), vec(to_light / distance[:, None]),
                             Float((4e4 / distance[keep] ** 2).astype(np.float32)),
                             vec(_unit(np.cross(-to_light / distance[:, None], absorption))),
-                            vec(_unit(np.cross(ray_d, [0.0, 1.0, 0.0]))))
+                            vec(_unit(np.cross(ray_d, UP))))
     args = [vec(n)] + [Float(np.full(keep.sum(), v, np.float32)) for v in PARAMS.values()]
     exact = np.array(predict_stokes(geometry, *args).analyser_images(RHO_SSS)[0])
     coaxial = np.array(predict_stokes(geometry, *args, coaxial=True).analyser_images(RHO_SSS)[0])

@@ -7,6 +7,7 @@ import pytest
 import mitsuba as mi
 from helpers import mueller_to_numpy as as_numpy
 from polarbssrdf.optics import (
+    coordinate_system,
     depolarizer,
     linear_polarizer,
     rotate_mueller_basis,
@@ -57,6 +58,19 @@ def test_stokes_basis_matches_mitsuba(rng):
     theirs = np.array(mi.mueller.stokes_basis(d))
     np.testing.assert_allclose(ours, theirs, atol=1e-6)
     assert np.abs(np.sum(ours * np.array(d), axis=0)).max() < 1e-6  # perpendicular
+
+
+def test_coordinate_system_is_mitsubas_right_handed_frame(rng):
+    """Both tangents, for normals in both hemispheres (the second tangent was wrong for z < 0)."""
+    d = random_unit_vectors(rng, 1000)
+    s, t = coordinate_system(d)
+    s_ref, t_ref = mi.coordinate_system(d)
+    np.testing.assert_allclose(np.array(s), np.array(s_ref), atol=1e-6)
+    np.testing.assert_allclose(np.array(t), np.array(t_ref), atol=1e-6)
+    n = np.array(d)
+    assert np.abs(np.sum(np.array(t) * n, axis=0)).max() < 1e-6
+    np.testing.assert_allclose(np.sum(np.cross(np.array(s).T, np.array(t).T) * n.T, axis=1), 1.0,
+                               atol=1e-6)
 
 
 def test_rotate_mueller_basis_matches_mitsuba(rng):
