@@ -35,7 +35,7 @@ import numpy as np
 
 __all__ = ["FIELDS", "FORMAT_VERSION", "ObservationStore", "TexelViews", "block_of_texel"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: raw samples in radiance (recorded calibration)
 """Version of the store layout; part of the fingerprint, so a new layout forces a rebuild."""
 
 ROWS_PER_CHUNK = 65536

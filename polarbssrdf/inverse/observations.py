@@ -18,11 +18,19 @@ A texel-view keeps its geometry in OBJECT space (the atlas frame, ``world =
 pose @ object``): directions to the camera and the light, the light's
 distance, intensity and field direction at the texel (``ppoint``'s model),
 the image's Stokes x axis for the ray, and the four analyser samples per band
-(bilinear at the projected texel centre). ``raw`` images are demosaicked on
-load with the residual-interpolation demosaicker
-(:func:`polarbssrdf.capture.demosaic_residual`); their samples stay in the
-sensor's linear digital numbers, since the capture format records no
-radiometric scale for raw images.
+(bilinear at the projected texel centre). Analyser samples are radiance,
+W/(sr mm^2), for both image kinds: ``raw`` images are first converted from
+digital numbers with their record's calibration, ``radiance = (DN -
+black_level_dn) * radiance_per_dn[band]`` (``docs/capture_format.md``), pixels
+at or above ``saturation_dn`` becoming NaN (so, like NaN pixels, they drop only
+the texel-views they reach), and then demosaicked with the
+residual-interpolation demosaicker
+(:func:`polarbssrdf.capture.demosaic_residual`). Converting first matters for
+the black level (the demosaicker is scale- but not offset-invariant: its
+guided-filter regularization is relative to the image's mean). A raw record
+without ``radiance_per_dn`` (captures written before the format had it) is
+refused with an :class:`ObservationError`: its DN cannot be compared with
+predicted radiance.
 
 Storage: a zarr v3 group chunked by texel block (see
 :mod:`polarbssrdf.inverse.observation_store` for the layout and why zarr).
@@ -217,7 +225,7 @@ def _nan_reach_px(layout, radius: int) -> int:
 
 
 def demosaicked_analyser(raw, layout) -> dict[str, np.ndarray]:
-    """``I0, I45, I90, I135`` (float32, raw units) of a mono polarization mosaic.
+    """``I0, I45, I90, I135`` (float32, the mosaic's units) of a mono polarization mosaic.
 
     Uses the residual-interpolation demosaicker. NaN/inf raw pixels are
     replaced by zero for demosaicking and every output pixel they can reach is
@@ -246,11 +254,23 @@ def demosaicked_analyser(raw, layout) -> dict[str, np.ndarray]:
     return result
 
 
+def _raw_radiance(record, band: str, raw) -> np.ndarray:
+    """Radiance (float64, W/(sr mm^2)) of a raw mosaic; saturated pixels are NaN."""
+    dn = np.asarray(raw, dtype=np.float64)
+    radiance = record.radiance(band, dn)
+    if record.saturation_dn is not None:
+        radiance[dn >= record.saturation_dn] = np.nan
+    return radiance
+
+
 def analyser_images(capture, record) -> list[np.ndarray]:
     """The image's analyser channels, ``[band0.I0, band0.I45, ..., bandK.I135]`` (H x W float32).
 
-    Read without the capture's finiteness check, so that NaN pixels of real
-    captures drop texel-views instead of the whole image.
+    Radiance for both kinds: raw mosaics are calibrated (``radiance_per_dn``,
+    ``black_level_dn``; saturated pixels NaN) and then demosaicked; a raw
+    record without calibration raises :class:`ObservationError`. Read without
+    the capture's finiteness check, so that NaN pixels of real captures drop
+    texel-views instead of the whole image.
     """
     from polarbssrdf.io.exr import read_exr
 
@@ -266,10 +286,17 @@ def analyser_images(capture, record) -> list[np.ndarray]:
         if channels[name].shape != (camera.height, camera.width):
             raise ObservationError(f"'{path}': channel '{name}' is {channels[name].shape[::-1]} "
                                    f"(width x height), camera {camera.name} is {camera.image_size}")
+    if record.kind == "raw" and not record.calibrated:
+        raise ObservationError(f"'{path}': raw image without a radiometric calibration: the "
+                               "capture lacks radiance_per_dn (and black_level_dn) for it in "
+                               "capture.json, so its digital numbers cannot be turned into "
+                               "radiance; add them (docs/capture_format.md) or give analyser "
+                               "images")
     images = []
     for band in manifest.band_names:
         if record.kind == "raw":
-            analyser = demosaicked_analyser(channels[f"{band}.raw"], camera.layout)
+            analyser = demosaicked_analyser(_raw_radiance(record, band, channels[f"{band}.raw"]),
+                                            camera.layout)
             images += [analyser[f"I{angle}"] for angle in ANALYSER_ANGLES]
         else:
             images += [np.asarray(channels[f"{band}.I{angle}"], dtype=np.float32)
@@ -703,7 +730,8 @@ def build_observations(capture, frame_index, texture_size, path, *, exclude_came
             "image_margin_px": IMAGE_MARGIN_PX, "capture": os.fspath(capture.directory),
             "skipped_views": skipped, "statistics": statistics, "texel_views": total,
             "units": {"length": "mm", "intensity": "W/sr",
-                      "analyser": "image units (raw images: linear digital numbers)"},
+                      "analyser": "W/(sr mm^2) (radiance; raw images calibrated with "
+                                  "radiance_per_dn and black_level_dn)"},
         })
         _replace(building_path, path)
     finally:

@@ -7,7 +7,8 @@ their validation. Validation errors are :class:`CaptureFormatError` (a
 ``ValueError``) whose message starts with the path to the offending field,
 e.g. ``frames[2].images[0].camera: unknown camera 'cam9'``.
 
-Units: lengths in mm, wavelengths in nm, light intensity in W/sr. Camera
+Units: lengths in mm, wavelengths in nm, light intensity in W/sr (so
+radiance, the unit of analyser images, is W/(sr mm^2)). Camera
 extrinsics map world points to OpenCV camera coordinates (x right, y down,
 z forward): ``X_cam = R X_world + t``; pixels are ``x ~ K X_cam`` with
 OpenCV's convention that pixel ``(column u, row v)`` has its centre at the
@@ -453,6 +454,10 @@ class Light:
     __hash__ = None
 
 
+_CALIBRATION_FIELDS = ("radiance_per_dn", "black_level_dn", "saturation_dn")
+"""Optional fields of an image record: the radiometric calibration of a raw image."""
+
+
 @dataclass(frozen=True)
 class ImageRecord:
     """One image file of a frame: what camera saw with which light on.
@@ -465,12 +470,31 @@ class ImageRecord:
         EXR file, relative to the capture directory (``/`` separators).
     kind:
         ``analyser`` or ``raw`` (see :data:`IMAGE_KINDS`).
+    radiance_per_dn:
+        Raw images only, optional: ``{band: radiance per digital number}``,
+        radiance in W/(sr mm^2) (the unit of analyser images), one positive
+        finite number for every band of the manifest (checked there). The
+        mean response of the shot is linear:
+        ``radiance = (DN - black_level_dn) * radiance_per_dn[band]``.
+        ``None`` (older captures): the image has no radiometric scale;
+        readers that need radiance refuse it.
+    black_level_dn:
+        The offset of the same formula, DN (>= 0, finite); given exactly when
+        ``radiance_per_dn`` is.
+    saturation_dn:
+        Optional (raw images with ``radiance_per_dn`` only): pixels reading
+        this many DN or more are clipped (e.g. 4095 for a 12-bit ADC) and
+        carry no radiance; must exceed ``black_level_dn``. ``None``: unknown,
+        nothing is flagged.
     """
 
     camera: str
     light: str
     path: str
     kind: str = "analyser"
+    radiance_per_dn: dict | None = None
+    black_level_dn: float | None = None
+    saturation_dn: float | None = None
 
     def __post_init__(self):
         _string(self.camera, "camera")
@@ -479,13 +503,82 @@ class ImageRecord:
         if self.kind not in IMAGE_KINDS:
             raise CaptureFormatError("kind", f"must be one of {', '.join(IMAGE_KINDS)}, "
                                              f"got {self.kind!r}")
+        given = [name for name in _CALIBRATION_FIELDS if getattr(self, name) is not None]
+        if given and self.kind != "raw":
+            raise CaptureFormatError(given[0], f"only raw images carry a radiometric calibration "
+                                               f"({self.kind} images are radiance already)")
+        if self.radiance_per_dn is None:
+            if given:
+                raise CaptureFormatError(given[0], "needs radiance_per_dn (the calibration is "
+                                                   "radiance = (DN - black_level_dn) * "
+                                                   "radiance_per_dn[band])")
+            return
+        scales = self.radiance_per_dn
+        if not isinstance(scales, Mapping) or not scales:
+            raise CaptureFormatError("radiance_per_dn", "must be a non-empty JSON object "
+                                     f"{{band: radiance per DN}}, got {_describe(scales)}")
+        checked = {}
+        for band, value in scales.items():
+            where = f"radiance_per_dn.{band}"
+            if not isinstance(band, str) or not band:
+                raise CaptureFormatError("radiance_per_dn", f"band names must be non-empty "
+                                                            f"strings, got {_describe(band)}")
+            number = _number(value, where)
+            if number <= 0:
+                raise CaptureFormatError(where, f"must be > 0, got {number:g}")
+            checked[band] = number
+        object.__setattr__(self, "radiance_per_dn", checked)
+        if self.black_level_dn is None:
+            raise CaptureFormatError("black_level_dn", "missing: required with radiance_per_dn "
+                                                       "(0 for a sensor without offset)")
+        black = _number(self.black_level_dn, "black_level_dn", minimum=0.0)
+        object.__setattr__(self, "black_level_dn", black)
+        if self.saturation_dn is not None:
+            saturation = _number(self.saturation_dn, "saturation_dn")
+            if saturation <= black:
+                raise CaptureFormatError("saturation_dn", f"must exceed black_level_dn "
+                                                          f"({black:g}), got {saturation:g}")
+            object.__setattr__(self, "saturation_dn", saturation)
+
+    def __hash__(self):
+        scales = None if self.radiance_per_dn is None else tuple(self.radiance_per_dn.items())
+        return hash((self.camera, self.light, self.path, self.kind, scales, self.black_level_dn,
+                     self.saturation_dn))
+
+    @property
+    def calibrated(self) -> bool:
+        """True for a raw record with a radiometric calibration (``radiance_per_dn``)."""
+        return self.radiance_per_dn is not None
+
+    def radiance(self, band: str, dn) -> np.ndarray:
+        """``(dn - black_level_dn) * radiance_per_dn[band]`` as float64, W/(sr mm^2).
+
+        Saturated pixels are not flagged here (compare ``dn`` with
+        ``saturation_dn``). ``ValueError`` for records without a calibration,
+        ``KeyError`` for a band it does not have.
+        """
+        if self.radiance_per_dn is None:
+            raise ValueError(f"image {self.path!r} ({self.kind}) has no radiance_per_dn")
+        if band not in self.radiance_per_dn:
+            raise KeyError(f"image {self.path!r} has no radiance_per_dn for band {band!r} "
+                           f"(it has {', '.join(self.radiance_per_dn)})")
+        values = np.asarray(dn, dtype=np.float64)
+        return (values - self.black_level_dn) * self.radiance_per_dn[band]
 
     def to_json(self) -> dict:
-        return {"camera": self.camera, "light": self.light, "path": self.path, "kind": self.kind}
+        document = {"camera": self.camera, "light": self.light, "path": self.path,
+                    "kind": self.kind}
+        if self.radiance_per_dn is not None:
+            document["radiance_per_dn"] = dict(self.radiance_per_dn)
+            document["black_level_dn"] = self.black_level_dn
+            if self.saturation_dn is not None:
+                document["saturation_dn"] = self.saturation_dn
+        return document
 
     @classmethod
     def from_json(cls, data, where: str = "image") -> ImageRecord:
-        return _validated(lambda: cls(**_object(data, "", ("camera", "light", "path", "kind"))),
+        return _validated(lambda: cls(**_object(data, "", ("camera", "light", "path", "kind"),
+                                                _CALIBRATION_FIELDS)),
                           where)
 
 
@@ -569,7 +662,7 @@ def image_path(frame_index: int, camera: str, light: str) -> str:
 
 
 def plan_frame(index: int, time_s: float, pose, pairs: Iterable[tuple[str, str]],
-               kind: str = "analyser") -> Frame:
+               kind: str = "analyser", calibration: Mapping[str, Mapping] | None = None) -> Frame:
     """A :class:`Frame` with one image per ``(camera, light)`` pair at :func:`image_path`.
 
     Parameters
@@ -580,8 +673,14 @@ def plan_frame(index: int, time_s: float, pose, pairs: Iterable[tuple[str, str]]
         ``(camera name, light name)`` for each image taken in this frame.
     kind:
         ``analyser`` or ``raw`` for all images.
+    calibration:
+        Raw images only: ``{camera name: {"radiance_per_dn": {band: float},
+        "black_level_dn": float, "saturation_dn": float}}`` (the optional
+        fields of :class:`ImageRecord`) for the cameras that have one.
     """
-    images = tuple(ImageRecord(camera, light, image_path(index, camera, light), kind)
+    calibration = calibration or {}
+    images = tuple(ImageRecord(camera, light, image_path(index, camera, light), kind,
+                               **calibration.get(camera, {}))
                    for camera, light in pairs)
     return Frame(index, time_s, pose, images)
 
@@ -708,6 +807,17 @@ class CaptureManifest:
                 if record.kind == "raw" and cameras[record.camera].sensor == "ideal":
                     raise CaptureFormatError(f"{where}.kind", f"camera {record.camera!r} has an "
                                              "ideal sensor without a mosaic: it has no raw images")
+                if record.radiance_per_dn is not None:
+                    bands = self.band_names
+                    missing = [band for band in bands if band not in record.radiance_per_dn]
+                    if missing:
+                        raise CaptureFormatError(f"{where}.radiance_per_dn", f"missing band(s) "
+                                                 f"{', '.join(missing)} (every band needs a "
+                                                 "scale)")
+                    extra = [band for band in record.radiance_per_dn if band not in bands]
+                    if extra:
+                        raise CaptureFormatError(f"{where}.radiance_per_dn.{extra[0]}",
+                                                 f"unknown band (bands: {', '.join(bands)})")
                 if record.path in paths:
                     raise CaptureFormatError(f"{where}.path", f"{record.path!r} is used twice "
                                              f"(also {paths[record.path]})")

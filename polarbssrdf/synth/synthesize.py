@@ -10,6 +10,17 @@ with ``interreflection``); the camera records I0/I45/I90/I135 (or, with
 ``raw``, the noisy 12-bit mosaic of a polarization sensor). The geometry is
 the base mesh displaced by the displacement map; the capture stores the
 base mesh, as a multi-view-stereo reconstruction would give it.
+
+Raw exposure: one fixed exposure per camera for the whole capture, set the way
+a stage is metered with a white target before the shoot, from the rig alone
+(:func:`raw_sensor`): a white Lambertian reflector facing the camera's light at
+the rig's working distance ``d`` (light to the camera's aim point) would read
+:data:`RAW_WHITE_FULL_WELL` of the full well through one analyser, whose
+radiance is ``I / (2 pi d^2)``. Every band and frame of a camera uses it, so
+it is known before anything is rendered: the plan (``capture.plan.json``)
+holds each raw record's ``radiance_per_dn``, ``black_level_dn`` and
+``saturation_dn`` (:func:`raw_calibration`), and a resumed run is
+bit-identical to a fresh one.
 """
 
 from __future__ import annotations
@@ -183,7 +194,8 @@ def prepare_frame(prepared, frame):
 def render_frame_view(prepared, state, camera, rng=None):
     """Images per band (``"<band>.I0"`` ...) of one camera lit by its light in one frame.
 
-    With ``raw``, the channels are ``"<band>.raw"`` sensor mosaics in digital numbers.
+    With ``raw``, the channels are ``"<band>.raw"`` sensor mosaics in digital numbers,
+    exposed with the camera's fixed :func:`raw_sensor`.
     """
     settings = prepared.settings
     light = prepared.stage.light(prepared.stage.light_for_camera[camera.name])
@@ -193,6 +205,7 @@ def render_frame_view(prepared, state, camera, rng=None):
     irradiance = transmitted_irradiance(scene, state.atlas, state.maps["eta"])
     camera_index = [c.name for c in prepared.stage.cameras].index(camera.name)
     channels, channel_names = {}, None
+    noise = raw_sensor(prepared.stage, camera.name) if settings.raw else None
     for band_index, band in enumerate(prepared.bands):
         exitance = layered_exitance(irradiance, state.layers[band_index],
                                     prepared.kernels[band_index], state.atlas)
@@ -201,22 +214,67 @@ def render_frame_view(prepared, state, camera, rng=None):
         seed = image_seed(settings.seed, state.index, camera_index, band_index)
         images, channel_names = render_analyser_images(scene, settings.spp, seed, channel_names)
         if settings.raw:
-            channels[f"{band.name}.raw"] = _raw_mosaic(images, rng)
+            channels[f"{band.name}.raw"] = _raw_mosaic(images, noise, rng)
         else:
             for name in ANALYSER:
                 channels[f"{band.name}.{name}"] = images[name]
     return channels
 
 
-def _raw_mosaic(images, rng):
-    """Noisy 12-bit mosaic of a mono polarization sensor (IMX250MZR) from analyser images."""
-    from polarbssrdf.capture import IMX250MZR, SensorNoise, mosaic_images, simulate_raw
+RAW_WHITE_FULL_WELL = 0.8
+"""Fraction of the full well a white diffuse reflector at the working distance fills
+(through one analyser): skin (albedo well below 1, and half of it with cross-polarized
+analysers) stays far below, leaving headroom for the specular highlights."""
+RAW_BLACK_LEVEL_DN = 64.0
+"""Black level of the simulated sensor, DN: keeps read noise of dark pixels off the
+clip at 0 (so the mean response stays linear) and makes saturated pixels read 4095."""
+
+
+def raw_sensor(stage, camera_name):
+    """The fixed exposure (:class:`~polarbssrdf.capture.SensorNoise`) of one rig camera.
+
+    ``electrons_per_radiance = RAW_WHITE_FULL_WELL * full_well / L_white`` with
+    ``L_white = I / (2 pi d^2)`` (W/(sr mm^2)): the analyser radiance of a white
+    Lambertian facing the camera's light (intensity ``I``, W/sr) at the distance
+    ``d`` (mm) from the light to the camera's aim point. A function of the rig
+    only, so every frame and band of the camera shares it.
+    """
+    from polarbssrdf.capture import SensorNoise
+
+    camera = next(c for c in stage.cameras if c.name == camera_name)
+    light = stage.light(stage.light_for_camera[camera_name])
+    distance = float(np.linalg.norm(np.asarray(light.position, float)
+                                    - np.asarray(camera.target, float)))
+    white = float(light.intensity) / (2.0 * np.pi * distance ** 2)
+    if not (np.isfinite(white) and white > 0):
+        raise ValueError(f"camera {camera_name}: its light gives no radiance to meter raw "
+                         f"exposure on (intensity {light.intensity}, distance {distance} mm)")
+    full_well = SensorNoise(electrons_per_radiance=1.0).full_well_electrons  # the default
+    return SensorNoise(electrons_per_radiance=RAW_WHITE_FULL_WELL * full_well / white,
+                       black_level_dn=RAW_BLACK_LEVEL_DN)
+
+
+def raw_calibration(noise, band_names):
+    """The image-record calibration of a raw shot with ``noise`` (see ``docs/capture_format.md``).
+
+    Below saturation ``E[DN] = gain * electrons_per_radiance * L + black_level``
+    (:func:`polarbssrdf.capture.expected_raw_mean`), so
+    ``radiance_per_dn = 1 / (gain * electrons_per_radiance)`` for every band;
+    the ADC clips at ``max_dn``, which is the saturation level.
+    """
+    scale = 1.0 / (noise.gain * noise.electrons_per_radiance)
+    return {"radiance_per_dn": {name: scale for name in band_names},
+            "black_level_dn": float(noise.black_level_dn),
+            "saturation_dn": float(noise.max_dn)}
+
+
+def _raw_mosaic(images, noise, rng):
+    """Noisy 12-bit mosaic (DN) of a mono polarization sensor (IMX250MZR) from analyser images."""
+    from polarbssrdf.capture import IMX250MZR, mosaic_images, simulate_raw
 
     # I(theta) = (S0 + S1 cos 2theta + S2 sin 2theta) / 2 can round to -1e-11 where S0 ~ |S1|
     radiance = mosaic_images({name: np.maximum(values, 0.0) for name, values in images.items()},
                              IMX250MZR)
-    peak = max(float(np.percentile(radiance, 99.9)), 1e-12)
-    noise = SensorNoise(electrons_per_radiance=0.8 * 10500 / peak)
     return simulate_raw(radiance, noise, rng).astype(np.float32)
 
 
@@ -237,7 +295,11 @@ def capture_manifest(prepared):
                     polarizer_normal=light.polarizer_normal) for light in stage.lights]
     pairs = [(c.name, stage.light_for_camera[c.name]) for c in stage.cameras]
     kind = "raw" if settings.raw else "analyser"
-    frames = [plan_frame(index, index * FRAME_INTERVAL_S, np.eye(4), pairs, kind)
+    band_names = [band.name for band in prepared.bands]
+    # the exposure is fixed per camera and known from the rig: the plan records it
+    calibration = ({c.name: raw_calibration(raw_sensor(stage, c.name), band_names)
+                    for c in stage.cameras} if settings.raw else None)
+    frames = [plan_frame(index, index * FRAME_INTERVAL_S, np.eye(4), pairs, kind, calibration)
               for index in range(settings.frames)]
     # everything the images depend on, so that a resume with other settings is refused
     metadata = {"generator": f"polarbssrdf {__version__} synth",

@@ -555,3 +555,136 @@ def test_image_metadata_names_the_record(written):
     directory, manifest, _, _ = written
     _, metadata = read_exr(directory / manifest.frames[1].images[1].path)
     assert metadata == {"frame": 1, "camera": "cam01", "light": "light01", "kind": "raw"}
+
+
+# --------------------------------------------------------------------------- raw calibration
+CALIBRATION = {"radiance_per_dn": {"BA": 2.5e-4, "BB": 1.0 / 3.0}, "black_level_dn": 64.0,
+               "saturation_dn": 4095.0}
+
+
+def _calibrated_manifest():
+    """:func:`_manifest` with every raw record (cam01) calibrated."""
+    manifest = _manifest()
+    frames = [plan_frame(f.index, f.time_s, f.pose, [("cam00", "light00")]) for f in
+              manifest.frames]
+    frames = [type(f)(f.index, f.time_s, f.pose, f.images + plan_frame(
+        f.index, f.time_s, f.pose, [("cam01", "light01")], "raw", {"cam01": CALIBRATION}).images)
+        for f in frames]
+    return CaptureManifest(bands=manifest.bands, cameras=manifest.cameras,
+                           lights=manifest.lights, frames=tuple(frames), mesh=manifest.mesh,
+                           synthetic=True, truth=manifest.truth, metadata=manifest.metadata)
+
+
+def test_raw_calibration_round_trips_and_converts(tmp_path, rng):
+    manifest = _calibrated_manifest()
+    record = manifest.frames[1].image("cam01", "light01")
+    assert record.calibrated and record.radiance_per_dn == CALIBRATION["radiance_per_dn"]
+    assert record.to_json() == {"camera": "cam01", "light": "light01", "path": record.path,
+                                "kind": "raw", **CALIBRATION}
+    directory = tmp_path / "capture"
+    write_capture(directory, manifest, _images(manifest, rng), _truth(manifest, rng),
+                  mesh=uv_sphere(20.0, rings=6, segments=8))
+    text = (directory / MANIFEST_NAME).read_text()
+    loaded = load_capture(directory).manifest
+    assert loaded == manifest and dumps_json(loaded.to_json()) == text
+    again = loaded.frames[1].image("cam01", "light01")
+    assert again == record and hash(again) == hash(record)
+    # bit-exact floats through JSON
+    assert again.radiance_per_dn["BB"] == 1.0 / 3.0
+    dn = np.array([[64.0, 1064.0]])
+    np.testing.assert_array_equal(again.radiance("BB", dn), [[0.0, 1000.0 / 3.0]])
+    # analyser records carry none and write none
+    analyser = loaded.frames[0].image("cam00", "light00")
+    assert not analyser.calibrated and set(analyser.to_json()) == {"camera", "light", "path",
+                                                                   "kind"}
+    with pytest.raises(ValueError, match="has no radiance_per_dn"):
+        analyser.radiance("BA", dn)
+    with pytest.raises(KeyError, match="no radiance_per_dn for band 'RA'"):
+        again.radiance("RA", dn)
+
+
+def test_old_raw_records_without_calibration_still_load(written):
+    directory, manifest, _, _ = written
+    document = json.loads((directory / MANIFEST_NAME).read_text())
+    assert "radiance_per_dn" not in document["frames"][0]["images"][1]
+    record = load_capture(directory).manifest.frames[0].image("cam01", "light01")
+    assert record.kind == "raw" and not record.calibrated
+    assert record.black_level_dn is None and record.saturation_dn is None
+
+
+def _calibrate(document):
+    for frame in document["frames"]:
+        frame["images"][1].update(json.loads(json.dumps(CALIBRATION)))
+
+
+def _then(*edits):
+    def edit(document):
+        for step in edits:
+            step(document)
+    return edit
+
+
+RAW = ["frames", 1, "images", 1]
+BAD_CALIBRATIONS = {
+    "on analyser": (_set(["frames", 0, "images", 0, "radiance_per_dn"], {"BA": 1.0, "BB": 1.0}),
+                    r"frames\[0\]\.images\[0\]\.radiance_per_dn: only raw images carry a "
+                    r"radiometric calibration \(analyser images are radiance already\)"),
+    "black level on analyser": (_set(["frames", 0, "images", 0, "black_level_dn"], 0.0),
+                                r"frames\[0\]\.images\[0\]\.black_level_dn: only raw images"),
+    "missing band": (_delete(RAW + ["radiance_per_dn", "BB"]),
+                     r"frames\[1\]\.images\[1\]\.radiance_per_dn: missing band\(s\) BB"),
+    "unknown band": (_set(RAW + ["radiance_per_dn", "ZZ"], 1.0),
+                     r"frames\[1\]\.images\[1\]\.radiance_per_dn\.ZZ: unknown band \(bands: BA, "
+                     r"BB\)"),
+    "zero scale": (_set(RAW + ["radiance_per_dn", "BA"], 0.0),
+                   r"frames\[1\]\.images\[1\]\.radiance_per_dn\.BA: must be > 0, got 0"),
+    "negative scale": (_set(RAW + ["radiance_per_dn", "BA"], -1e-3),
+                       r"frames\[1\]\.images\[1\]\.radiance_per_dn\.BA: must be > 0"),
+    "infinite scale": (_set(RAW + ["radiance_per_dn", "BA"], float("inf")),
+                       r"frames\[1\]\.images\[1\]\.radiance_per_dn\.BA: must be finite"),
+    "string scale": (_set(RAW + ["radiance_per_dn", "BA"], "1e-3"),
+                     r"frames\[1\]\.images\[1\]\.radiance_per_dn\.BA: must be a number, got str"),
+    "not an object": (_set(RAW + ["radiance_per_dn"], [1.0, 2.0]),
+                      r"frames\[1\]\.images\[1\]\.radiance_per_dn: must be a non-empty JSON "
+                      r"object"),
+    "empty": (_set(RAW + ["radiance_per_dn"], {}),
+              r"frames\[1\]\.images\[1\]\.radiance_per_dn: must be a non-empty"),
+    "no black level": (_delete(RAW + ["black_level_dn"]),
+                       r"frames\[1\]\.images\[1\]\.black_level_dn: missing: required with "
+                       r"radiance_per_dn"),
+    "negative black level": (_set(RAW + ["black_level_dn"], -1.0),
+                             r"frames\[1\]\.images\[1\]\.black_level_dn: must be >= 0"),
+    "black level alone": (_delete(RAW + ["radiance_per_dn"]),
+                          r"frames\[1\]\.images\[1\]\.black_level_dn: needs radiance_per_dn"),
+    "saturation below black": (_set(RAW + ["saturation_dn"], 10.0),
+                               r"frames\[1\]\.images\[1\]\.saturation_dn: must exceed "
+                               r"black_level_dn \(64\), got 10"),
+    "misspelt field": (_set(RAW + ["radiance_per_DN"], {}),
+                       r"frames\[1\]\.images\[1\]\.radiance_per_DN: unexpected field"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CALIBRATIONS))
+def test_bad_raw_calibration_names_the_field(written, case):
+    directory = written[0]
+    edit, message = BAD_CALIBRATIONS[case]
+    document = json.loads((directory / MANIFEST_NAME).read_text())
+    _calibrate(document)
+    (directory / MANIFEST_NAME).write_text(json.dumps(document))
+    load_capture(directory, check_images=False)  # the calibrated capture itself is fine
+    edit(document)
+    (directory / MANIFEST_NAME).write_text(json.dumps(document))
+    with pytest.raises(CaptureFormatError, match=r"capture\.json: " + message):
+        load_capture(directory, check_images=False)
+
+
+def test_python_records_validate_calibration():
+    from polarbssrdf.io.manifest import ImageRecord
+
+    with pytest.raises(CaptureFormatError, match="radiance_per_dn: only raw images"):
+        ImageRecord("c", "l", "a.exr", "analyser", {"BA": 1.0}, 0.0)
+    with pytest.raises(CaptureFormatError, match=r"^radiance_per_dn\.BA: must be > 0"):
+        ImageRecord("c", "l", "a.exr", "raw", {"BA": -1.0}, 0.0)
+    record = ImageRecord("c", "l", "a.exr", "raw", {"BA": np.float32(0.5)}, np.int64(3))
+    assert type(record.radiance_per_dn["BA"]) is float and record.black_level_dn == 3.0
+    assert {record: 1}[ImageRecord("c", "l", "a.exr", "raw", {"BA": 0.5}, 3.0)] == 1
