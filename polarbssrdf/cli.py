@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "polarbssrdf.skin.commands",
     "polarbssrdf.synth.commands",
     "polarbssrdf.calibration.commands",
+    "polarbssrdf.inverse.commands",
 )
 
 EXIT_USER_ERROR = 2

@@ -1,0 +1,204 @@
+"""Settings of the polarimetric stages, with the paper's values as defaults (supplement sec. 5.1).
+
+Every field can be overridden from a JSON file (``reconstruct --config``):
+a JSON object with any subset of the keys below; nested ``weights``,
+``bounds``, ``initial`` and ``learning_rates`` objects override only the
+keys they name. Unknown keys and out-of-range values are errors that name
+the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+STATIC_WEIGHTS = {
+    "psi": 0.002, "sss": 1.0, "s": 1.0, "phi": 1.0,  # eq. 26
+    "H_magnitude": 1.0, "H_laplacian": 1000.0,  # eq. 33-34
+    "alpha_s_smoothness": 200.0, "alpha_ss_smoothness": 200.0, "eta_smoothness": 400.0,  # eq. 35
+}
+"""Loss weights of eq. 26 and 32 (lambda_psi, lambda_sss, lambda_s, lambda_phi, then the regularizers)."""
+
+BOUNDS = {
+    "eta": (1.3, 1.6), "alpha_s": (0.1, 0.7), "alpha_ss": (0.7, 1.0),
+    "rho_s": (0.0, 10.0), "rho_ss": (0.0, 10.0), "displacement": (-5.0, 5.0),
+}
+"""Box constraints applied after every step (albedos only need to stay >= 0; H in mm)."""
+
+INITIAL = {"eta": 1.4, "alpha_s": 0.35, "alpha_ss": 1.0, "rho_s": 0.5, "rho_ss": 0.2,
+           "displacement": 0.0}
+"""Start values (those of the authors' code for eta, alpha_s, alpha_ss and H)."""
+
+LEARNING_RATES = {"eta": 5e-3, "alpha_s": 2e-3, "alpha_ss": 2e-3, "rho_s": 4e-3, "rho_ss": 4e-3,
+                  "displacement": 2e-3}
+"""RMSProp learning rates per map (per step; H in mm per step)."""
+
+OPTIMIZED = tuple(INITIAL)
+"""The maps the gradient steps update (``rho_sss`` per band is solved in closed form)."""
+
+
+@dataclasses.dataclass
+class StaticConfig:
+    """Settings of the static stage.
+
+    Attributes
+    ----------
+    iterations : int
+        Epochs: passes over every patch of the texture in a random order.
+    patch_size : int
+        Patch edge in texels (rounded down to the observation store's block size;
+        the whole texture when it is smaller).
+    min_steps_per_epoch : int
+        On small textures one epoch is a single patch; repeat it so that an
+        epoch takes at least this many steps.
+    weights, bounds, initial, learning_rates : dict
+        See :data:`STATIC_WEIGHTS`, :data:`BOUNDS`, :data:`INITIAL`, :data:`LEARNING_RATES`.
+    gradient_clip : float
+        Maximum global gradient norm (the authors' 2.0).
+    specular_half_cosine : float
+        Texel-views whose half vector is within ``acos`` of this of the normal
+        train the specular lobe (single scattering held), the others the
+        single-scattering lobe (specular held); the authors' 0.86.
+    separate_lobes : bool
+        Split the texel-views between the lobes by ``specular_half_cosine``
+        as the authors' code does; by default both lobes learn from every
+        texel-view and are kept apart by their disjoint roughness bounds
+        (``alpha_s`` in [0.1, 0.7], ``alpha_ss`` in [0.7, 1.0]), which fitted
+        noise-free spheres better (see docs/reconstruct.md).
+    photometric_noise : float
+        Expected noise of the images as a fraction of the patch's mean
+        ``I_sss``: data residuals are divided by it, so a data term is a
+        mean chi-square per texel-view and the paper's regularizer weights
+        act in parameter units against it.
+    min_cosine : float
+        Texel-views used in the losses need ``cos`` of the view and of the
+        light above this.
+    min_views : int
+        Texels with fewer usable texel-views get confidence 0 and take their
+        values from their neighbours.
+    seed : int
+        Seed of the patch order (a resumed run repeats it exactly).
+    deterministic : bool
+        Run Dr.Jit's kernels on one thread while optimizing, so that the
+        atomic scatter-adds of the backward pass add in a fixed order: runs
+        repeat bit for bit and a resumed run ends exactly where an
+        uninterrupted one does. RMSProp amplifies the last-bit differences
+        of a multi-threaded run to about 1e-3 in the maps after a few
+        epochs. ``False`` uses every core.
+    polarimetric : bool
+        Use ``L_psi`` and ``L_phi``; ``False`` is the ablation without them.
+    coaxial : bool
+        Ablation: take the light direction equal to the view direction.
+    """
+
+    iterations: int = 150
+    patch_size: int = 256
+    min_steps_per_epoch: int = 4
+    weights: dict = dataclasses.field(default_factory=lambda: dict(STATIC_WEIGHTS))
+    bounds: dict = dataclasses.field(default_factory=lambda: dict(BOUNDS))
+    initial: dict = dataclasses.field(default_factory=lambda: dict(INITIAL))
+    learning_rates: dict = dataclasses.field(default_factory=lambda: dict(LEARNING_RATES))
+    gradient_clip: float = 2.0
+    specular_half_cosine: float = 0.86
+    separate_lobes: bool = False
+    photometric_noise: float = 0.01
+    min_cosine: float = 0.3
+    min_views: int = 2
+    seed: int = 0
+    deterministic: bool = True
+    polarimetric: bool = True
+    coaxial: bool = False
+
+    def __post_init__(self):
+        _positive_int(self.iterations, "iterations", minimum=0)
+        _positive_int(self.patch_size, "patch_size", minimum=8)
+        _positive_int(self.min_steps_per_epoch, "min_steps_per_epoch")
+        _positive_int(self.min_views, "min_views")
+        _positive_int(self.seed, "seed", minimum=0)
+        for key, table in (("weights", STATIC_WEIGHTS), ("learning_rates", LEARNING_RATES)):
+            values = getattr(self, key)
+            _known_keys(values, table, key)
+            for name, value in values.items():
+                _finite(value, f"{key}.{name}", minimum=0.0)
+        _known_keys(self.bounds, BOUNDS, "bounds")
+        for name, pair in self.bounds.items():
+            if (not isinstance(pair, (list, tuple)) or len(pair) != 2
+                    or not all(isinstance(v, (int, float)) for v in pair) or not pair[0] < pair[1]):
+                raise ValueError(f"config: bounds.{name} must be [low, high] with low < high, "
+                                 f"got {pair!r}")
+        self.bounds = {name: (float(low), float(high)) for name, (low, high) in self.bounds.items()}
+        if self.bounds["eta"][0] <= 1.0:
+            raise ValueError("config: bounds.eta must stay above 1 (a dielectric)")
+        if self.bounds["alpha_s"][0] <= 0 or self.bounds["alpha_ss"][0] <= 0:
+            raise ValueError("config: roughness bounds must be > 0")
+        _known_keys(self.initial, INITIAL, "initial")
+        for name, value in self.initial.items():
+            _finite(value, f"initial.{name}")
+            low, high = self.bounds[name]
+            if not low <= value <= high:
+                raise ValueError(f"config: initial.{name} = {value} is outside bounds.{name} "
+                                 f"[{low}, {high}]")
+        _finite(self.gradient_clip, "gradient_clip", minimum=0.0)
+        _finite(self.specular_half_cosine, "specular_half_cosine", minimum=0.0, maximum=1.0)
+        _finite(self.min_cosine, "min_cosine", minimum=0.0, maximum=1.0)
+        _finite(self.photometric_noise, "photometric_noise", minimum=1e-6)
+
+    def to_json(self) -> dict:
+        data = dataclasses.asdict(self)
+        data["bounds"] = {name: list(pair) for name, pair in self.bounds.items()}
+        return data
+
+
+def _positive_int(value, name, minimum=1):
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"config: {name} must be an integer >= {minimum}, got {value!r}")
+
+
+def _finite(value, name, minimum=None, maximum=None):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"config: {name} must be a finite number, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ValueError(f"config: {name} must be >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"config: {name} must be <= {maximum}, got {value!r}")
+
+
+def _known_keys(values, table, name):
+    if not isinstance(values, dict):
+        raise ValueError(f"config: {name} must be an object, got {values!r}")
+    unknown = sorted(set(values) - set(table))
+    if unknown:
+        raise ValueError(f"config: unknown {name} key(s) {unknown}; known: {sorted(table)}")
+
+
+def static_config(overrides=None, **changes) -> StaticConfig:
+    """A :class:`StaticConfig` from defaults, a JSON-like ``overrides`` dict and keyword changes."""
+    data = {}
+    for source in (overrides or {}, changes):
+        unknown = sorted(set(source) - {f.name for f in dataclasses.fields(StaticConfig)})
+        if unknown:
+            raise ValueError(f"config: unknown key(s) {unknown}; known: "
+                             f"{sorted(f.name for f in dataclasses.fields(StaticConfig))}")
+        for key, value in source.items():
+            if key in ("weights", "bounds", "initial", "learning_rates"):
+                if not isinstance(value, dict):
+                    raise ValueError(f"config: {key} must be an object, got {value!r}")
+                merged = dict(data.get(key) or getattr(StaticConfig(), key))
+                merged.update(value)
+                data[key] = merged
+            else:
+                data[key] = value
+    return StaticConfig(**data)
+
+
+def load_static_config(path, **changes) -> StaticConfig:
+    """:func:`static_config` from a JSON file (errors name the file)."""
+    from polarbssrdf.io.jsonfile import read_json_file
+
+    data = read_json_file(path, "config file")
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: the config must be a JSON object")
+    try:
+        return static_config(data, **changes)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None

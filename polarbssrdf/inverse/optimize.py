@@ -1,0 +1,256 @@
+"""One optimizer step of the polarimetric stages on one patch (supplement eq. 26-35).
+
+The maps being optimized are full-texture Dr.Jit tensors owned by a
+``drjit.opt.RMSProp`` optimizer with ``mask_updates=True``: a patch step
+gives gradients only to the patch's window, and texels elsewhere keep their
+values *and* their RMSProp state, as if the patch were optimized alone.
+``rho_sss`` per band is linear given the rest: before each gradient step it
+is solved per texel and band by least squares on ``L_sss``
+(:func:`solve_subsurface_albedo`), then held. The global gradient norm is
+clipped, and every map is clamped to its bounds after the step.
+
+Specular vs single scattering: both lobes are GGX lobes with the same
+Fresnel term and differ only in roughness, so one observation cannot tell
+them apart. As in the authors' code, texel-views whose half vector is close
+to the normal (``cos theta_h > specular_half_cosine``, 0.86) train the
+specular lobe with the single-scattering lobe held, and the others train the
+single-scattering lobe with the specular lobe held; ``eta`` and the
+normals learn from all of them.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import numpy as np
+
+from polarbssrdf._arrays import to_jit
+from polarbssrdf.geometry.height import normals_from_height
+from polarbssrdf.inverse.config import OPTIMIZED
+from polarbssrdf.inverse.losses import DATA_TERMS, data_losses
+from polarbssrdf.inverse.model import half_vector_cosine, jit_types, predict_stokes
+from polarbssrdf.inverse.regularizers import (
+    displacement_laplacian,
+    displacement_magnitude,
+    neighbourhood_smoothness,
+)
+
+REGULARIZER_TERMS = ("H_magnitude", "H_laplacian", "alpha_s_smoothness", "alpha_ss_smoothness",
+                     "eta_smoothness")
+
+
+class MapParameters:
+    """The full-texture maps, their optimizer and the closed-form ``rho_sss`` maps.
+
+    Parameters
+    ----------
+    maps : dict
+        ``name -> (T, T)`` float32 start values for every name in
+        :data:`polarbssrdf.inverse.config.OPTIMIZED`.
+    rho_sss : (n_bands, T, T) array
+        Start values of the subsurface albedo per band.
+    learning_rates : dict
+        Per map.
+    optimized : sequence of str
+        The maps that receive gradient steps (the others are held).
+    """
+
+    def __init__(self, maps, rho_sss, learning_rates, optimized=OPTIMIZED):
+        _, _, _, TensorXf = jit_types()
+        self.TensorXf = TensorXf
+        self.resolution = int(np.asarray(maps["eta"]).shape[0])
+        self.optimized = tuple(optimized)
+        self.fixed = {name: TensorXf(np.ascontiguousarray(maps[name], np.float32))
+                      for name in OPTIMIZED if name not in self.optimized}
+        self.optimizer = dr.opt.RMSProp(lr=1e-3, mask_updates=True)
+        for name in self.optimized:
+            self.optimizer[name] = TensorXf(np.ascontiguousarray(maps[name], np.float32))
+            self.optimizer.set_learning_rate({name: float(learning_rates[name])})
+        self.rho_sss = np.array(rho_sss, dtype=np.float32)
+
+    def tensor(self, name):
+        return self.optimizer[name] if name in self.optimized else self.fixed[name]
+
+    def to_numpy(self):
+        """``name -> (T, T) float32`` of every map (detached)."""
+        return {name: np.array(self.tensor(name), dtype=np.float32) for name in OPTIMIZED}
+
+    def state(self):
+        """What a checkpoint stores: values and RMSProp second moments, as NumPy."""
+        state = {f"map.{name}": array for name, array in self.to_numpy().items()}
+        for name in self.optimized:
+            second_moment = self.optimizer.state[name][3]
+            state[f"rmsprop.{name}"] = np.array(second_moment, dtype=np.float32)
+        state["rho_sss"] = self.rho_sss.copy()
+        return state
+
+    def restore(self, state):
+        """Inverse of :meth:`state` (exactly: values, second moments and ``rho_sss``)."""
+        for name in OPTIMIZED:
+            tensor = self.TensorXf(np.ascontiguousarray(state[f"map.{name}"], np.float32))
+            if name in self.optimized:
+                self.optimizer[name] = tensor
+                value, promoted, lr, _ = self.optimizer.state[name]
+                moment = type(value.array)(np.ascontiguousarray(
+                    state[f"rmsprop.{name}"], np.float32).ravel())
+                # drjit.opt keeps (value, promoted, lr, second moment) per parameter
+                self.optimizer.state[name] = (value, promoted, lr, moment)
+            else:
+                self.fixed[name] = tensor
+        self.rho_sss = np.array(state["rho_sss"], dtype=np.float32)
+
+    def clamp(self, bounds):
+        for name in self.optimized:
+            low, high = bounds[name]
+            self.optimizer[name] = dr.clip(self.optimizer[name], low, high)
+
+
+def _window_values(tensor, prepared):
+    """Flat Float of a map over the patch's window (differentiable gather)."""
+    return dr.gather(type(tensor.array), tensor.array, prepared.window_index_jit)
+
+
+def _per_view(values, prepared):
+    return dr.gather(type(values), values, prepared.texel)
+
+
+def window_normals(height_window, prepared):
+    """Per texel-view normals from the window's displacement (eq. 25, shading frame)."""
+    _, Array3f, _, TensorXf = jit_types()
+    shape = prepared.window_valid.shape
+    # off-mesh texels carry no surface: keep their H out of the valid texels' differences
+    nx, ny, nz = normals_from_height(TensorXf(height_window * prepared.window_valid_jit, shape),
+                                     prepared.atlas)
+    return Array3f(*[_per_view(c.array, prepared) for c in (nx, ny, nz)])
+
+
+def predicted_patch(params, prepared, config):
+    """Per texel-view parameters, normals and the predicted Stokes components of a patch.
+
+    Returns ``(stokes, values, normal, specular_views)`` where ``values`` are the
+    window values of each map (for the regularizers).
+    """
+    values = {name: _window_values(params.tensor(name), prepared) for name in OPTIMIZED}
+    normal = window_normals(values["displacement"], prepared)
+    per_view = {name: _per_view(values[name], prepared) for name in OPTIMIZED
+                if name != "displacement"}
+    held = dict(per_view)
+    specular_views = None
+    if config.separate_lobes:
+        specular_views = dr.detach(half_vector_cosine(prepared.geometry, normal)) \
+            > config.specular_half_cosine
+        for name in ("rho_s", "alpha_s"):
+            held[name] = dr.select(specular_views, per_view[name], dr.detach(per_view[name]))
+        for name in ("rho_ss", "alpha_ss"):
+            held[name] = dr.select(specular_views, dr.detach(per_view[name]), per_view[name])
+    stokes = predict_stokes(prepared.geometry, normal, per_view["eta"], held["rho_s"],
+                            held["alpha_s"], held["rho_ss"], held["alpha_ss"],
+                            coaxial=config.coaxial)
+    return stokes, values, normal, specular_views
+
+
+def usable_views(prepared, normal, config):
+    """Weight 1 for texel-views whose view and light cosines exceed ``min_cosine``, else 0."""
+    geometry = prepared.geometry
+    cos_view = dr.dot(dr.detach(normal), geometry.to_camera)
+    cos_light = dr.dot(dr.detach(normal), geometry.to_light)
+    return dr.select((cos_view > config.min_cosine) & (cos_light > config.min_cosine), 1.0, 0.0)
+
+
+def solve_subsurface_albedo(stokes, prepared, weight, previous):
+    """Least-squares ``rho_sss`` per window texel and band from ``L_sss`` (eq. 27), >= 0.
+
+    ``I90 = A + rho B`` per texel-view (glossy and unit-albedo subsurface
+    parts), so ``rho = sum w B (I90_obs - A) / sum w B^2`` per texel.
+    Texels without usable views keep ``previous``.
+
+    Parameters
+    ----------
+    previous : (n_bands, n_window) float32
+        Current values over the window.
+
+    Returns
+    -------
+    (n_bands, n_window) float32 NumPy array.
+    """
+    Float = type(weight)
+    n_window = len(prepared.window_index)
+    glossy = dr.detach(stokes.glossy)
+    unit = dr.detach(stokes.subsurface)
+    A90 = 0.5 * (glossy[0] - glossy[1])
+    B90 = 0.5 * (unit[0] - unit[1])
+    denominator = dr.zeros(Float, n_window)
+    dr.scatter_add(denominator, weight * dr.square(B90), prepared.texel)
+    denominator = np.array(denominator)
+    solved = np.array(previous, dtype=np.float32, copy=True)
+    for band, observed in enumerate(prepared.observed):
+        numerator = dr.zeros(Float, n_window)
+        dr.scatter_add(numerator, weight * B90 * (observed[2] - A90), prepared.texel)
+        numerator = np.array(numerator)
+        known = denominator > 1e-30 * max(float(denominator.max(initial=0.0)), 1e-30)
+        solved[band, known] = np.maximum(numerator[known] / denominator[known], 0.0)
+    return solved
+
+
+def patch_losses(params, prepared, config, weights, solve_albedo=True):
+    """Every loss term of a patch as Dr.Jit scalars, the total, and the usable-view weights.
+
+    With ``solve_albedo`` the patch's ``rho_sss`` is first re-solved in closed
+    form (and stored in ``params``); without, the current maps are used.
+    """
+    stokes, values, normal, _ = predicted_patch(params, prepared, config)
+    weight = usable_views(prepared, normal, config)
+    T = params.resolution
+    flat_rho = params.rho_sss.reshape(len(params.rho_sss), T * T)
+    solved = flat_rho[:, prepared.window_index]
+    if solve_albedo:
+        solved = solve_subsurface_albedo(stokes, prepared, weight, solved)
+        flat_rho[:, prepared.window_index] = solved
+    Float = type(weight)
+    count = dr.maximum(dr.detach(dr.sum(weight)), 1.0)
+    glossy_I_s = stokes.glossy[1]  # I0 - I90 of the glossy lobes is S1
+    terms = {name: Float(0.0) for name in DATA_TERMS}
+    for band, observed in enumerate(prepared.observed):
+        rho = _per_view(to_jit(Float, solved[band], np.float32), prepared)
+        predicted = stokes.analyser_images(rho)
+        band_terms = data_losses(predicted, observed, glossy_I_s, weight,
+                                 dr.opaque(Float, prepared.image_scale), config.photometric_noise,
+                                 count)
+        for name in DATA_TERMS:
+            terms[name] = terms[name] + band_terms[name] / len(prepared.observed)
+    stencils = prepared.stencils
+    terms["H_magnitude"] = displacement_magnitude(values["displacement"], stencils)
+    terms["H_laplacian"] = displacement_laplacian(values["displacement"], stencils)
+    for name in ("alpha_s", "alpha_ss", "eta"):
+        terms[f"{name}_smoothness"] = neighbourhood_smoothness(values[name], stencils)
+    total = sum(float(weights.get(name, 0.0)) * terms[name] for name in terms)
+    return terms, total, weight
+
+
+def active_weights(config, data_weights=None):
+    """Loss weights with the ablation switches applied."""
+    weights = dict(data_weights if data_weights is not None else config.weights)
+    if not config.polarimetric:
+        weights["psi"] = weights["phi"] = 0.0
+    return weights
+
+
+def optimizer_step(params, prepared, config, weights):
+    """One step on one patch; returns ``{term: float}`` with ``total`` and the gradient norm."""
+    if len(prepared) == 0:
+        return None
+    terms, total, _ = patch_losses(params, prepared, config, weights)
+    dr.backward(total)
+    squared = 0.0
+    for name in params.optimized:
+        squared = squared + dr.sum(dr.square(dr.grad(params.optimizer[name]).array))
+    norm = float(dr.sqrt(squared)[0]) if params.optimized else 0.0
+    scale = min(1.0, config.gradient_clip / norm) if norm > 0 and config.gradient_clip > 0 else 1.0
+    if params.optimized:
+        # opaque: a literal scale would compile a new kernel at every step
+        Float = type(dr.grad(params.optimizer[params.optimized[0]]).array)
+        params.optimizer.step(grad_scale=dr.opaque(Float, scale))
+        params.clamp(config.bounds)
+    record = {name: float(value[0]) for name, value in terms.items()}
+    record["total"] = float(total[0])
+    record["gradient_norm"] = norm
+    return record

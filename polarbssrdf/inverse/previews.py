@@ -1,0 +1,91 @@
+"""PNG previews of result maps, each with a colour bar and its unit."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from polarbssrdf.inverse.result import RESULT_UNITS
+
+MAP_RANGES = {"eta": (1.3, 1.6), "alpha_s": (0.1, 0.7), "alpha_ss": (0.7, 1.0),
+              "confidence": (0.0, 1.0)}
+"""Fixed colour ranges where the parameter has natural bounds; others use the 1st-99th percentile."""
+
+
+def _unit(name):
+    parameter = name.partition(".")[0]
+    unit = RESULT_UNITS.get(parameter, "1")
+    return "dimensionless" if unit == "1" else unit
+
+
+def _range(name, values):
+    if name in MAP_RANGES:
+        return MAP_RANGES[name]
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return 0.0, 1.0
+    low, high = np.percentile(finite, [1, 99])
+    if name.startswith("displacement"):
+        bound = max(abs(low), abs(high), 1e-6)
+        return -bound, bound
+    return float(low), float(max(high, low + 1e-6))
+
+
+def map_preview_png(name, values):
+    """PNG bytes of one map with a colour bar labelled with its unit."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    values = np.asarray(values, np.float32)
+    low, high = _range(name, values)
+    cmap = "coolwarm" if name.startswith("displacement") else "viridis"
+    figure, axes = plt.subplots(figsize=(3.6, 3.0), dpi=100)
+    if name.startswith("normal"):
+        image = axes.imshow(values, vmin=-1, vmax=1, cmap="coolwarm", interpolation="nearest")
+    else:
+        image = axes.imshow(values, vmin=low, vmax=high, cmap=cmap, interpolation="nearest")
+    axes.set_title(name, fontsize=9)
+    axes.set_xticks([])
+    axes.set_yticks([])
+    bar = figure.colorbar(image, ax=axes, fraction=0.046, pad=0.04)
+    bar.set_label(_unit(name), fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", bbox_inches="tight")
+    plt.close(figure)
+    return buffer.getvalue()
+
+
+def normal_map_png(maps):
+    """PNG bytes of the normals as RGB ``(n + 1) / 2``."""
+    from PIL import Image
+
+    normal = np.stack([maps["normal.x"], maps["normal.y"], maps["normal.z"]], axis=-1)
+    rgb = np.clip((normal + 1.0) * 0.5 * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    buffer = io.BytesIO()
+    Image.fromarray(rgb).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def write_map_previews(maps, directory, suffix):
+    """``<directory>/<map>_<suffix>.png`` for every map (atomic writes); returns the paths."""
+    from polarbssrdf.io.atomic import atomic_write_bytes
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, values in maps.items():
+        if name.startswith("normal."):
+            continue
+        path = directory / f"{name}_{suffix}.png"
+        atomic_write_bytes(path, map_preview_png(name, values), overwrite=True)
+        paths.append(path)
+    if all(f"normal.{axis}" in maps for axis in "xyz"):
+        path = directory / f"normal_{suffix}.png"
+        atomic_write_bytes(path, normal_map_png(maps), overwrite=True)
+        paths.append(path)
+    return paths

@@ -1,0 +1,199 @@
+"""The result format: ``result.json`` and per-stage, per-frame float32 EXR maps.
+
+A result directory mirrors a capture's ``truth/``: maps are T x T float32
+OpenEXR files whose channel names, texture convention and units are those of
+the truth maps (``eta``, ``alpha_s``, ``alpha_ss``, ``rho_s``, ``rho_ss``,
+``displacement``, ``rho_sss.<band>``; plus ``normal.x/y/z`` and
+``confidence``), so :mod:`polarbssrdf.inverse.evaluate` compares like with
+like and every later stage reads the earlier ones from disk::
+
+    OUTDIR/result.json            schema "polarbssrdf.result", version 1
+    OUTDIR/static/maps_f0000.exr  the static stage's maps
+    OUTDIR/<stage>/maps_f####.exr later stages, one file per frame
+
+``result.json`` lists ``{frame, stage, path, channels}`` per map file and
+is rewritten atomically each time a map is added, so it only ever lists
+complete files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import os
+from pathlib import Path
+
+from polarbssrdf.io.atomic import atomic_write_text
+from polarbssrdf.io.jsonfile import read_json_file
+from polarbssrdf.io.truth import DEFAULT_TRUTH_UNITS, TEXTURE_CONVENTION
+
+RESULT_SCHEMA = "polarbssrdf.result"
+RESULT_SCHEMA_VERSION = 1
+RESULT_FILE = "result.json"
+
+RESULT_UNITS = dict(DEFAULT_TRUTH_UNITS, normal="1", confidence="1")
+"""Units of result channels (the truth's, plus unit normals and the confidence in [0, 1])."""
+
+
+def stage_map_path(stage, frame):
+    """Relative path of a stage's map file: ``static/maps_f0000.exr``."""
+    return f"{stage}/maps_f{int(frame):04d}.exr"
+
+
+@dataclasses.dataclass
+class ResultManifest:
+    """Contents of ``result.json``."""
+
+    capture: str
+    texture_size: int
+    units: dict
+    maps: list = dataclasses.field(default_factory=list)
+    settings: dict = dataclasses.field(default_factory=dict)
+    texture_convention: str = TEXTURE_CONVENTION
+
+    def to_json(self):
+        return {"schema": RESULT_SCHEMA, "schema_version": RESULT_SCHEMA_VERSION,
+                "capture": self.capture, "texture_size": self.texture_size,
+                "texture_convention": self.texture_convention, "units": dict(self.units),
+                "settings": self.settings, "maps": list(self.maps)}
+
+    @classmethod
+    def from_json(cls, data, where):
+        if not isinstance(data, dict) or data.get("schema") != RESULT_SCHEMA:
+            raise ValueError(f"{where}: not a polarbssrdf result (schema {RESULT_SCHEMA!r} expected)")
+        version = data.get("schema_version")
+        if not isinstance(version, int) or version > RESULT_SCHEMA_VERSION:
+            raise ValueError(f"{where}: schema_version {version!r} is not supported "
+                             f"(this polarbssrdf reads up to {RESULT_SCHEMA_VERSION})")
+        for key in ("capture", "texture_size", "units", "maps"):
+            if key not in data:
+                raise ValueError(f"{where}: missing key {key!r}")
+        return cls(capture=data["capture"], texture_size=data["texture_size"],
+                   units=data["units"], maps=list(data["maps"]),
+                   settings=data.get("settings", {}),
+                   texture_convention=data.get("texture_convention", TEXTURE_CONVENTION))
+
+    def record(self, stage, frame):
+        for record in self.maps:
+            if record["stage"] == stage and record["frame"] == frame:
+                return record
+        return None
+
+
+def read_result(outdir) -> ResultManifest:
+    """The ``result.json`` of ``outdir`` (errors name the file)."""
+    path = Path(outdir) / RESULT_FILE
+    return ResultManifest.from_json(read_json_file(path, "result file"), str(path))
+
+
+def write_result(outdir, manifest):
+    """Write ``result.json`` atomically."""
+    text = json.dumps(manifest.to_json(), indent=2) + "\n"
+    atomic_write_text(Path(outdir) / RESULT_FILE, text, overwrite=True)
+
+
+def register_map(outdir, stage, frame, channels):
+    """Add (or replace) the record of ``stage``/``frame`` in ``result.json``."""
+    manifest = read_result(outdir)
+    manifest.maps = [r for r in manifest.maps if not (r["stage"] == stage and r["frame"] == frame)]
+    manifest.maps.append({"frame": int(frame), "stage": stage, "path": stage_map_path(stage, frame),
+                          "channels": list(channels)})
+    manifest.maps.sort(key=lambda r: (r["stage"], r["frame"]))
+    write_result(outdir, manifest)
+
+
+def write_stage_maps(outdir, stage, frame, channels, metadata=None):
+    """Write a stage's maps of one frame (atomically) and register them; returns the path."""
+    from polarbssrdf.io.exr import write_exr
+
+    path = Path(outdir) / stage_map_path(stage, frame)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"stage": stage, "frame": int(frame),
+            "written": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    meta.update(metadata or {})
+    write_exr(path, channels, metadata=meta, overwrite=True)
+    register_map(outdir, stage, frame, channels)
+    return path
+
+
+def read_stage_maps(outdir, stage, frame):
+    """Channel -> (T, T) float32 map of a registered stage/frame."""
+    from polarbssrdf.io.exr import read_exr
+
+    manifest = read_result(outdir)
+    record = manifest.record(stage, frame)
+    if record is None:
+        have = sorted({r["stage"] for r in manifest.maps})
+        raise FileNotFoundError(f"{Path(outdir) / RESULT_FILE}: no {stage!r} maps for frame "
+                                f"{frame} (stages present: {', '.join(have) or 'none'})")
+    channels, _ = read_exr(Path(outdir) / record["path"])
+    return channels
+
+
+def prepare_result_directory(outdir, capture_directory, texture_size, settings, *, resume=False,
+                             overwrite=False):
+    """Create ``outdir`` for a run, or check that it holds the same run for ``resume``.
+
+    Refuses a non-empty directory unless ``resume`` (same capture and
+    settings: the differing ones are named) or ``overwrite``; refuses to
+    write inside the capture. Returns the :class:`ResultManifest`.
+    """
+    outdir = Path(outdir).resolve()
+    capture_directory = Path(capture_directory).resolve()
+    if outdir == capture_directory or capture_directory in outdir.parents:
+        raise ValueError(f"output directory {outdir} is inside the capture {capture_directory}: "
+                         "a run never writes into its input")
+    existing = outdir.is_dir() and any(outdir.iterdir())
+    manifest_path = outdir / RESULT_FILE
+    if existing and resume:
+        if not manifest_path.is_file():
+            raise FileExistsError(f"{outdir} is not empty and holds no {RESULT_FILE}: it is not "
+                                  "a reconstruction to resume")
+        manifest = read_result(outdir)
+        differences = _settings_differences(manifest, str(capture_directory), texture_size,
+                                            settings)
+        if differences:
+            raise ValueError(f"{outdir} holds another run ({'; '.join(differences)}): rerun with "
+                             "its settings to resume, or use --overwrite to start over")
+        return manifest
+    if existing and not overwrite:
+        raise FileExistsError(f"{outdir} is not empty: use --resume to continue the run in it, "
+                              "or --overwrite to start over")
+    outdir.mkdir(parents=True, exist_ok=True)
+    if existing and overwrite:
+        _remove_run_files(outdir)
+    units = dict(RESULT_UNITS)
+    manifest = ResultManifest(capture=str(capture_directory), texture_size=int(texture_size),
+                              units=units, settings=settings)
+    write_result(outdir, manifest)
+    return manifest
+
+
+def _settings_differences(manifest, capture, texture_size, settings):
+    differences = []
+    if manifest.capture != capture:
+        differences.append(f"capture {manifest.capture} vs {capture}")
+    if manifest.texture_size != texture_size:
+        differences.append(f"texture {manifest.texture_size} vs {texture_size}")
+    for key in sorted(set(manifest.settings) | set(settings)):
+        old, new = manifest.settings.get(key), settings.get(key)
+        if json.dumps(old, sort_keys=True) != json.dumps(new, sort_keys=True):
+            differences.append(f"{key}: {json.dumps(old)} vs {json.dumps(new)}")
+    return differences
+
+
+RUN_ENTRIES = (RESULT_FILE, "static", "metrics.json", "previews")
+"""What a run writes in OUTDIR; ``--overwrite`` removes only these (the observation cache stays:
+its fingerprint decides whether it is reused)."""
+
+
+def _remove_run_files(outdir):
+    import shutil
+
+    for name in RUN_ENTRIES:
+        path = Path(outdir) / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            os.remove(path)

@@ -1,0 +1,260 @@
+"""The static stage: per-texel maps from one multi-view frame (supplement sec. 5.1, eq. 26-35).
+
+``run_static_stage`` turns the texture-space observations of a frame into
+maps of ``eta, rho_s, alpha_s, rho_ss, alpha_ss, rho_sss.<band>`` and the
+displacement ``H`` (with the normals it implies), written in the result
+format (:mod:`polarbssrdf.inverse.result`) as ``static/maps_f0000.exr``.
+
+Each epoch visits every patch once in a seeded random order and takes one
+optimizer step on it (:mod:`polarbssrdf.inverse.optimize`). After every
+epoch the maps, the optimizer state and the loss history are checkpointed
+atomically, so a killed run resumes at the last finished epoch and ends
+with the same maps as an uninterrupted one.
+
+Confidence: ``min(1, n / 8)`` for a texel with ``n`` usable texel-views
+(view and light cosines above ``min_cosine`` with the final normals), and
+0 below ``min_views``; confidence-0 texels (and texels off the mesh) take
+the values of their confident neighbours (normalized Gaussian fill), never
+NaN.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import json
+import time
+from pathlib import Path
+
+import drjit as dr
+import numpy as np
+
+from polarbssrdf.inverse.config import OPTIMIZED
+from polarbssrdf.inverse.optimize import (
+    MapParameters,
+    active_weights,
+    optimizer_step,
+    predicted_patch,
+    usable_views,
+)
+from polarbssrdf.inverse.patches import PatchCache, patch_order, texture_patches
+
+STAGE = "static"
+CHECKPOINT_FILE = "checkpoint.npz"
+FULL_CONFIDENCE_VIEWS = 8
+INITIAL_RHO_SSS = 0.5
+
+
+@dataclasses.dataclass
+class StageResult:
+    """What a polarimetric stage returns: the maps (channel -> (T, T)) and the loss history."""
+
+    maps: dict
+    history: list
+    path: Path | None = None
+
+
+def initial_parameters(config, texture_size, n_bands, start=None):
+    """Start maps: the config's constants, or ``start`` maps where given."""
+    maps = {name: np.full((texture_size, texture_size), config.initial[name], np.float32)
+            for name in OPTIMIZED}
+    rho_sss = np.full((n_bands, texture_size, texture_size), INITIAL_RHO_SSS, np.float32)
+    for name, values in (start or {}).items():
+        if name in maps:
+            maps[name] = np.asarray(values, np.float32)
+    return maps, rho_sss
+
+
+def save_checkpoint(path, params, epoch, history):
+    """Write the optimizer state after ``epoch`` epochs, atomically."""
+    from polarbssrdf.io.atomic import atomic_write_bytes
+
+    buffer = io.BytesIO()
+    state = params.state()
+    np.savez(buffer, epoch=np.int64(epoch), history=np.frombuffer(
+        json.dumps(history).encode("utf-8"), dtype=np.uint8), **state)
+    atomic_write_bytes(path, buffer.getvalue(), overwrite=True)
+
+
+def load_checkpoint(path, params):
+    """Restore ``params`` from a checkpoint; returns ``(epochs_done, history)``."""
+    with np.load(path) as data:
+        state = {key: data[key] for key in data.files}
+    params.restore(state)
+    history = json.loads(bytes(state["history"]).decode("utf-8"))
+    return int(state["epoch"]), history
+
+
+def _epoch_summary(records):
+    records = [r for r in records if r is not None]
+    if not records:
+        return {}
+    return {key: float(np.mean([r[key] for r in records])) for key in records[0]}
+
+
+@contextlib.contextmanager
+def kernel_threads(count):
+    """Run Dr.Jit's LLVM kernels on ``count`` threads inside the block (``None``: unchanged)."""
+    if count is None:
+        yield
+        return
+    previous = dr.thread_count()
+    dr.set_thread_count(count)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(previous)
+
+
+def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, weights=None,
+                  description=STAGE):
+    """Run the epochs of a polarimetric stage (resuming from ``checkpoint`` when it exists).
+
+    Returns the loss history (one summary per epoch).
+    """
+    from tqdm import tqdm
+
+    weights = active_weights(config, weights)
+    patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
+    cache = PatchCache(store, atlas)
+    history, first = [], 0
+    if checkpoint is not None and Path(checkpoint).is_file():
+        first, history = load_checkpoint(checkpoint, params)
+    with kernel_threads(1 if config.deterministic else None), \
+            tqdm(total=config.iterations, initial=first, desc=description, unit="epoch",
+                 disable=not progress) as bar:
+        for epoch in range(first, config.iterations):
+            records = [optimizer_step(params, cache.get(patch), config, weights)
+                       for patch in patch_order(patches, epoch, config.seed,
+                                                config.min_steps_per_epoch)]
+            summary = _epoch_summary(records)
+            summary["epoch"] = epoch + 1
+            history.append(summary)
+            if checkpoint is not None:
+                save_checkpoint(checkpoint, params, epoch + 1, history)
+            bar.set_postfix(loss=f"{summary.get('total', float('nan')):.3g}")
+            bar.update()
+    return history, cache
+
+
+def usable_view_counts(params, cache, patches, config):
+    """(T, T) number of usable texel-views per texel with the current normals."""
+    T = params.resolution
+    counts = np.zeros(T * T, np.float64)
+    for patch in patches:
+        prepared = cache.get(patch)
+        if len(prepared) == 0:
+            continue
+        _, _, normal, _ = predicted_patch(params, prepared, config)
+        weight = np.array(usable_views(prepared, normal, config))
+        np.add.at(counts, prepared.window_index[prepared.texel_numpy], weight)
+    return counts.reshape(T, T)
+
+
+def fill_from_confident(values, confident, sigma=2.0):
+    """Replace non-confident texels by the Gaussian-weighted mean of confident ones (growing)."""
+    from scipy.ndimage import gaussian_filter
+
+    values = np.asarray(values, np.float64)
+    if confident.all():
+        return values.astype(np.float32)
+    if not confident.any():
+        return values.astype(np.float32)
+    filled = np.where(confident, values, 0.0)
+    known = confident.astype(np.float64)
+    result = values.copy()
+    missing = ~confident
+    radius = sigma
+    while missing.any():
+        weight = gaussian_filter(known, radius, mode="nearest")
+        blurred = gaussian_filter(filled, radius, mode="nearest")
+        reached = missing & (weight > 1e-6)
+        result[reached] = blurred[reached] / weight[reached]
+        missing &= ~reached
+        radius *= 2.0
+        if radius > 4 * max(values.shape):
+            result[missing] = float(np.mean(values[confident]))
+            break
+    return result.astype(np.float32)
+
+
+def final_maps(params, atlas, confidence, band_names):
+    """The result channels: maps filled where confidence is 0, normals and confidence."""
+    from polarbssrdf.geometry.height import normals_from_height
+
+    confident = (confidence > 0) & atlas.valid
+    maps = params.to_numpy()
+    channels = {}
+    for name in OPTIMIZED:
+        channels[name] = fill_from_confident(maps[name], confident)
+    for band, name in enumerate(band_names):
+        channels[f"rho_sss.{name}"] = fill_from_confident(params.rho_sss[band], confident)
+    normal = normals_from_height(channels["displacement"] * atlas.valid, atlas)
+    for axis, component in zip("xyz", np.moveaxis(normal, -1, 0)):
+        channels[f"normal.{axis}"] = component.astype(np.float32)
+    channels["confidence"] = confidence.astype(np.float32)
+    return channels
+
+
+def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, progress=True,
+                         weights=None, optimized=OPTIMIZED, description=STAGE, params=None):
+    """Optimize maps on a store and return :class:`StageResult` (maps in the result format)."""
+    maps, rho_sss = initial_parameters(config, atlas.resolution, len(store.bands), start)
+    if start is not None:
+        for band, name in enumerate(store.bands):
+            if f"rho_sss.{name}" in start:
+                rho_sss[band] = np.asarray(start[f"rho_sss.{name}"], np.float32)
+    params = params or MapParameters(maps, rho_sss, config.learning_rates, optimized)
+    history, cache = optimize_maps(store, atlas, config, params, checkpoint, progress, weights,
+                                   description)
+    patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
+    counts = usable_view_counts(params, cache, patches, config)
+    confidence = np.where(counts >= config.min_views,
+                          np.minimum(1.0, counts / FULL_CONFIDENCE_VIEWS), 0.0)
+    confidence = np.where(atlas.valid, confidence, 0.0)
+    return StageResult(final_maps(params, atlas, confidence, store.bands), history)
+
+
+def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=(),
+                     progress=True):
+    """The static stage on ``capture`` into the prepared result directory ``outdir``.
+
+    Builds (or reuses) the observation cache under ``outdir/observations``,
+    optimizes with checkpoints under ``outdir/static``, writes
+    ``static/maps_f####.exr`` and its previews, and registers the maps.
+    """
+    import mitsuba as mi
+
+    from polarbssrdf.geometry import texel_atlas, to_mitsuba
+    from polarbssrdf.inverse.observations import load_or_build_observations
+    from polarbssrdf.inverse.previews import write_map_previews
+    from polarbssrdf.inverse.result import write_stage_maps
+
+    outdir = Path(outdir)
+    start = time.perf_counter()
+    store = load_or_build_observations(
+        capture, frame, texture_size, outdir / "observations" / f"f{frame:04d}.zarr",
+        exclude_cameras=tuple(holdout), progress=progress)
+    atlas = texel_atlas(to_mitsuba(capture.load_mesh()), texture_size)
+    stage_dir = outdir / STAGE
+    stage_dir.mkdir(parents=True, exist_ok=True)
+    result = run_polarimetric_fit(store, atlas, config, checkpoint=stage_dir / CHECKPOINT_FILE,
+                                  progress=progress)
+    metadata = {"config": config.to_json(), "texel_views": len(store),
+                "seconds": round(time.perf_counter() - start, 3), "variant": mi.variant()}
+    result.path = write_stage_maps(outdir, STAGE, frame, result.maps, metadata)
+    write_map_previews(result.maps, stage_dir / "previews", f"f{frame:04d}")
+    write_metrics(outdir, STAGE, result.history)
+    dr.flush_malloc_cache()
+    return result
+
+
+def write_metrics(outdir, stage, history):
+    """Add a stage's loss history to ``OUTDIR/metrics.json`` (atomically)."""
+    from polarbssrdf.io.atomic import atomic_write_text
+
+    path = Path(outdir) / "metrics.json"
+    metrics = json.loads(path.read_text()) if path.is_file() else {}
+    metrics[stage] = history
+    atomic_write_text(path, json.dumps(metrics, indent=1) + "\n", overwrite=True)

@@ -1,0 +1,273 @@
+"""``polarbssrdf reconstruct``: outputs, refusals, resume and overwrite, one-line errors.
+
+One tiny synthetic sphere (4 views, 48 x 48 px, T = 32) per module and 2
+epochs per run: the whole module takes well under a minute.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import mitsuba as mi
+
+from polarbssrdf.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, main
+
+T = 32
+SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=4)
+
+
+def run_cli(*argv):
+    """``(exit status, stdout, stderr)`` of ``polarbssrdf ARGV`` run in this process."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main([str(a) for a in argv])
+    return status, out.getvalue(), err.getvalue()
+
+
+def tree_hashes(directory):
+    """Relative path -> sha256 of every file under ``directory`` (and the set of directories)."""
+    hashes = {}
+    for path in sorted(directory.rglob("*")):
+        key = str(path.relative_to(directory))
+        hashes[key] = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else "dir"
+    return hashes
+
+
+@pytest.fixture(scope="module")
+def capture_dir(tmp_path_factory):
+    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    directory = tmp_path_factory.mktemp("reconstruct") / "capture"
+    synthesize(directory, SynthesisSettings(**SETTINGS), progress=False)
+    return directory
+
+
+@pytest.fixture(scope="module")
+def config_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("config") / "small.json"
+    path.write_text(json.dumps({"patch_size": 16, "min_steps_per_epoch": 2}))
+    return path
+
+
+def reconstruct_args(capture_dir, outdir, config_file, *extra):
+    return ("reconstruct", capture_dir, outdir, "--iterations", "2", "--config", config_file,
+            "--quiet", *extra)
+
+
+@pytest.fixture(scope="module")
+def run(capture_dir, config_file, tmp_path_factory):
+    """One complete run holding out cam03, with the capture's hashes before and after."""
+    outdir = tmp_path_factory.mktemp("runs") / "out"
+    before = tree_hashes(capture_dir)
+    status, stdout, stderr = run_cli(*reconstruct_args(capture_dir, outdir, config_file,
+                                                       "--holdout", "cam03"))
+    after = tree_hashes(capture_dir)
+    assert status == 0, stderr
+    return {"outdir": outdir, "stdout": stdout, "before": before, "after": after}
+
+
+def expected_channels(capture_dir):
+    from polarbssrdf.io import load_capture
+
+    bands = load_capture(capture_dir, check_images=False).manifest.band_names
+    return {"eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement",
+            *(f"rho_sss.{band}" for band in bands), "normal.x", "normal.y", "normal.z",
+            "confidence"}
+
+
+# --------------------------------------------------------------------------- outputs
+def test_result_json(run, capture_dir):
+    from polarbssrdf.io.truth import TEXTURE_CONVENTION
+
+    data = json.loads((run["outdir"] / "result.json").read_text())
+    assert data["schema"] == "polarbssrdf.result" and data["schema_version"] == 1
+    assert data["texture_size"] == T  # the truth's size: no --texture given
+    assert data["texture_convention"] == TEXTURE_CONVENTION
+    assert data["units"]["displacement"] == "mm" and data["units"]["eta"] == "1"
+    assert data["capture"] == str(capture_dir.resolve())
+    assert data["maps"] == [{"frame": 0, "stage": "static", "path": "static/maps_f0000.exr",
+                             "channels": data["maps"][0]["channels"]}]
+    assert set(data["maps"][0]["channels"]) == expected_channels(capture_dir)
+    settings = data["settings"]
+    assert settings["stages"] == ["static"] and settings["frame"] == 0
+    assert settings["holdout"] == ["cam03"]
+    assert settings["config"]["iterations"] == 2 and settings["config"]["patch_size"] == 16
+
+
+def test_maps_have_exactly_the_documented_channels_and_no_nan(run, capture_dir):
+    from polarbssrdf.io.exr import read_exr
+
+    channels, metadata = read_exr(run["outdir"] / "static" / "maps_f0000.exr")
+    assert set(channels) == expected_channels(capture_dir)
+    for name, values in channels.items():
+        assert values.dtype == np.float32 and values.shape == (T, T), name
+        assert np.all(np.isfinite(values)), name
+    assert metadata["texel_views"] > 0
+    assert 0 <= channels["confidence"].min() and channels["confidence"].max() <= 1
+
+
+def test_previews_decode_as_png(run):
+    from PIL import Image
+
+    previews = sorted((run["outdir"] / "static" / "previews").glob("*.png"))
+    names = {p.name for p in previews}
+    assert {"eta_f0000.png", "normal_f0000.png", "confidence_f0000.png"} <= names
+    for path in previews:
+        with Image.open(path) as image:
+            assert image.format == "PNG"
+            image.load()
+
+
+def test_metrics_json(run):
+    metrics = json.loads((run["outdir"] / "metrics.json").read_text())
+    assert [epoch["epoch"] for epoch in metrics["static"]] == [1, 2]
+    assert all(np.isfinite(epoch["total"]) for epoch in metrics["static"])
+
+
+def test_summary(run):
+    text = run["stdout"]
+    assert "texel-views" in text and "static/maps_f0000.exr" in text
+    assert " s)" in text and "held out cam03" in text
+
+
+def test_capture_is_never_modified(run):
+    assert run["after"] == run["before"]
+
+
+# --------------------------------------------------------------------------- OUTDIR rules
+def test_refuses_a_non_empty_outdir(run, capture_dir, config_file):
+    before = tree_hashes(run["outdir"])
+    status, _, stderr = run_cli(*reconstruct_args(capture_dir, run["outdir"], config_file,
+                                                  "--holdout", "cam03"))
+    assert status == EXIT_USER_ERROR
+    assert "not empty" in stderr and "--resume" in stderr and "--overwrite" in stderr
+    assert stderr.count("\n") == 1
+    assert tree_hashes(run["outdir"]) == before
+
+
+def test_refuses_an_outdir_inside_the_capture(capture_dir, config_file):
+    before = tree_hashes(capture_dir)
+    status, _, stderr = run_cli(*reconstruct_args(capture_dir, capture_dir / "result",
+                                                  config_file))
+    assert status == EXIT_USER_ERROR and "inside the capture" in stderr
+    assert stderr.count("\n") == 1
+    assert tree_hashes(capture_dir) == before
+
+
+def test_resume_with_other_settings_names_them(run, capture_dir, config_file):
+    status, _, stderr = run_cli("reconstruct", capture_dir, run["outdir"], "--iterations", "3",
+                                "--config", config_file, "--holdout", "cam02", "--resume",
+                                "--quiet")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
+    assert "--holdout" in stderr and '["cam03"]' in stderr and '["cam02"]' in stderr
+    assert "config.iterations" in stderr and "--overwrite" in stderr
+    status, _, stderr = run_cli(*reconstruct_args(capture_dir, run["outdir"], config_file,
+                                                  "--holdout", "cam03", "--texture", "16",
+                                                  "--resume"))
+    assert status == EXIT_USER_ERROR and "--texture: 32 (first run) vs 16 (now)" in stderr
+
+
+def test_interrupted_run_resumes_to_the_same_maps(run, capture_dir, config_file, tmp_path,
+                                                  monkeypatch):
+    """Ctrl-C after epoch 1 exits 130; --resume ends like an uninterrupted run."""
+    from polarbssrdf.inverse import static
+    from polarbssrdf.io.exr import read_exr
+
+    original = static.save_checkpoint
+
+    def interrupt_after_first_epoch(path, params, epoch, history):
+        original(path, params, epoch, history)
+        if epoch == 1:
+            raise KeyboardInterrupt
+
+    outdir = tmp_path / "out"
+    args = reconstruct_args(capture_dir, outdir, config_file, "--holdout", "cam03")
+    monkeypatch.setattr(static, "save_checkpoint", interrupt_after_first_epoch)
+    status, _, stderr = run_cli(*args)
+    assert status == EXIT_INTERRUPTED and "--resume" in stderr
+    assert not (outdir / "static" / "maps_f0000.exr").exists()
+    monkeypatch.setattr(static, "save_checkpoint", original)
+
+    status, _, stderr = run_cli(*args, "--resume")
+    assert status == 0, stderr
+    resumed, _ = read_exr(outdir / "static" / "maps_f0000.exr")
+    uninterrupted, _ = read_exr(run["outdir"] / "static" / "maps_f0000.exr")
+    for name, values in uninterrupted.items():
+        np.testing.assert_allclose(resumed[name], values, atol=1e-5, err_msg=name)
+    metrics = json.loads((outdir / "metrics.json").read_text())
+    assert [epoch["epoch"] for epoch in metrics["static"]] == [1, 2]
+
+    # --overwrite starts over with new settings
+    status, _, stderr = run_cli("reconstruct", capture_dir, outdir, "--iterations", "1",
+                                "--config", config_file, "--overwrite", "--quiet")
+    assert status == 0, stderr
+    data = json.loads((outdir / "result.json").read_text())
+    assert data["settings"]["config"]["iterations"] == 1 and data["settings"]["holdout"] == []
+    metrics = json.loads((outdir / "metrics.json").read_text())
+    assert [epoch["epoch"] for epoch in metrics["static"]] == [1]
+
+
+# --------------------------------------------------------------------------- user errors
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("case", ["stage", "holdout", "config_key", "config_range",
+                                  "config_nested", "missing_capture", "not_a_capture",
+                                  "variant"])
+def test_user_errors_are_one_line_with_status_2(case, capture_dir, config_file, tmp_path):
+    outdir = tmp_path / "out"
+    capture, extra, config = capture_dir, [], config_file
+    expected = []
+    if case == "stage":
+        extra = ["--stages", "static,bio"]
+        expected = ["unknown stage 'bio'", "known stages: static"]
+    elif case == "holdout":
+        extra = ["--holdout", "cam01,cam99"]
+        expected = ["cam99", "cam00, cam01, cam02, cam03"]
+    elif case == "config_key":
+        config = _write(tmp_path / "c.json", json.dumps({"patch_sise": 16}))
+        expected = ["patch_sise", str(config)]
+    elif case == "config_range":
+        config = _write(tmp_path / "c.json", json.dumps({"min_cosine": 1.5}))
+        expected = ["min_cosine", "<= 1"]
+    elif case == "config_nested":
+        config = _write(tmp_path / "c.json", json.dumps({"bounds": {"eta": [1.5, 1.4]}}))
+        expected = ["bounds.eta"]
+    elif case == "missing_capture":
+        capture = tmp_path / "no_such_capture"
+        expected = ["does not exist"]
+    elif case == "not_a_capture":
+        capture = tmp_path / "empty"
+        capture.mkdir()
+        expected = ["capture.json"]
+    elif case == "variant":
+        extra = ["--variant", "scalar_mono_polarized"]
+        expected = ["llvm_ad_mono_polarized"]
+    status, _, stderr = run_cli("reconstruct", capture, outdir, "--iterations", "2",
+                                "--config", config, "--quiet", *extra)
+    assert status == EXIT_USER_ERROR, stderr
+    assert stderr.startswith("polarbssrdf reconstruct: error: ") and stderr.count("\n") == 1
+    for text in expected:
+        assert text in stderr
+    assert not outdir.exists()  # refused before anything was written
+
+
+def test_capture_without_mesh(capture_dir, config_file, tmp_path):
+    copy = tmp_path / "capture"
+    shutil.copytree(capture_dir, copy)
+    manifest = json.loads((copy / "capture.json").read_text())
+    manifest["mesh"] = None
+    (copy / "capture.json").write_text(json.dumps(manifest))
+    status, _, stderr = run_cli(*reconstruct_args(copy, tmp_path / "out", config_file))
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
+    assert "no mesh" in stderr
