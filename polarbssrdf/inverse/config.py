@@ -29,9 +29,17 @@ INITIAL = {"eta": 1.4, "alpha_s": 0.35, "alpha_ss": 1.0, "rho_s": 0.5, "rho_ss":
            "displacement": 0.0}
 """Start values (those of the authors' code for eta, alpha_s, alpha_ss and H)."""
 
-LEARNING_RATES = {"eta": 5e-3, "alpha_s": 2e-3, "alpha_ss": 2e-3, "rho_s": 4e-3, "rho_ss": 4e-3,
+LEARNING_RATES = {"eta": 5e-3, "alpha_s": 2e-3, "alpha_ss": 5e-4, "rho_s": 1e-2, "rho_ss": 4e-3,
                   "displacement": 2e-3}
-"""RMSProp learning rates per map (per step; H in mm per step)."""
+"""RMSProp learning rates per map (per step; H in mm per step).
+
+RMSProp steps each texel by about its learning rate, so these set how far a
+map can travel in the default 150 epochs. ``alpha_ss`` moves slowly: the two
+GGX lobes trade roughness against albedo along a shallow valley, and a fast
+``alpha_ss`` drifts along it (on a 12-view sphere: ``alpha_ss`` 0.89 for a
+truth of 0.97 and ``alpha_s`` off by 0.025, against 0.973 and 0.020 with these
+rates); ``rho_s`` starts far from typical skin (0.5 vs about 0.8) and moves fast.
+"""
 
 OPTIMIZED = tuple(INITIAL)
 """The maps the gradient steps update (``rho_sss`` per band is solved in closed form)."""

@@ -85,15 +85,18 @@ def data_losses(predicted, observed, glossy_I_s, weight, mean_sss, noise, count)
         "s": _mean(weight * dr.square((s_hat - s) * inv_sigma), count),
     }
     # W_phi of eq. 31: the subsurface image relative to its mean
-    phi_weight = weight * sss / mean_sss
+    phi_weight = weight * dr.maximum(sss, 0.0) / mean_sss
     losses["phi"] = _mean(phi_weight * (dr.square((zeta_hat - zeta) * inv_sigma)
                                         + dr.square((xi_hat - xi) * inv_sigma)), count)
-    psi = dr.sqrt(dr.square(zeta) + dr.square(xi)) / dr.maximum(sss, 1e-30)
-    psi_hat = (dr.sqrt(dr.square(zeta_hat) + dr.square(xi_hat) + 1e-30 * dr.square(mean_sss))
-               / dr.maximum(sss_hat, 1e-30))
-    dominated = (sss > dr.abs(s)) & (psi < 1.0) & (sss > 0.0)
+    dominated = (sss > dr.abs(s)) & (sss > 0.0)
+    # where the subsurface light does not dominate, psi is undefined (I_sss <= 0 gives inf):
+    # select before squaring, so neither the value nor the gradient meets 0 x inf
+    safe_sss = dr.select(dominated, sss, 1.0)
+    psi = dr.sqrt(dr.square(zeta) + dr.square(xi)) / safe_sss
+    psi_hat = (dr.sqrt(dr.square(zeta_hat) + dr.square(xi_hat) + 1e-12 * dr.square(mean_sss))
+               / dr.maximum(sss_hat, 1e-6 * mean_sss))
+    dominated &= psi < 1.0
     # psi is a ratio of images: its noise is about sigma / I_sss
-    psi_inv_sigma = sss * inv_sigma
-    losses["psi"] = _mean(dr.select(dominated, weight, 0.0)
-                          * dr.square((psi_hat - psi) * psi_inv_sigma), count)
+    residual = (psi_hat - psi) * safe_sss * inv_sigma
+    losses["psi"] = _mean(dr.select(dominated, weight * dr.square(residual), 0.0), count)
     return losses

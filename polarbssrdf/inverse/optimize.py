@@ -244,6 +244,13 @@ def optimizer_step(params, prepared, config, weights):
     for name in params.optimized:
         squared = squared + dr.sum(dr.square(dr.grad(params.optimizer[name]).array))
     norm = float(dr.sqrt(squared)[0]) if params.optimized else 0.0
+    if not np.isfinite(norm):
+        # a non-finite gradient would turn texels into NaN (and the clamp into a bound): skip
+        for name in params.optimized:
+            dr.clear_grad(params.optimizer[name])
+        record = {name: float("nan") for name in terms}
+        record.update(total=float("nan"), gradient_norm=norm, skipped=1.0)
+        return record
     scale = min(1.0, config.gradient_clip / norm) if norm > 0 and config.gradient_clip > 0 else 1.0
     if params.optimized:
         # opaque: a literal scale would compile a new kernel at every step
@@ -253,4 +260,5 @@ def optimizer_step(params, prepared, config, weights):
     record = {name: float(value[0]) for name, value in terms.items()}
     record["total"] = float(total[0])
     record["gradient_norm"] = norm
+    record["skipped"] = 0.0
     return record

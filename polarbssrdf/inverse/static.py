@@ -66,31 +66,58 @@ def initial_parameters(config, texture_size, n_bands, start=None):
     return maps, rho_sss
 
 
-def save_checkpoint(path, params, epoch, history):
+def run_fingerprint(config, texture_size, bands, texel_views):
+    """What a checkpoint must share with the run that resumes it (a short hash)."""
+    import hashlib
+
+    settings = dict(config.to_json())
+    settings.pop("iterations")  # a run may be extended by more epochs
+    text = json.dumps({"config": settings, "texture": int(texture_size), "bands": list(bands),
+                       "texel_views": int(texel_views)}, sort_keys=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def _text_array(text):
+    return np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+
+
+def save_checkpoint(path, params, epoch, history, fingerprint=""):
     """Write the optimizer state after ``epoch`` epochs, atomically."""
     from polarbssrdf.io.atomic import atomic_write_bytes
 
     buffer = io.BytesIO()
     state = params.state()
-    np.savez(buffer, epoch=np.int64(epoch), history=np.frombuffer(
-        json.dumps(history).encode("utf-8"), dtype=np.uint8), **state)
+    np.savez(buffer, epoch=np.int64(epoch), history=_text_array(json.dumps(history)),
+             fingerprint=_text_array(fingerprint), **state)
     atomic_write_bytes(path, buffer.getvalue(), overwrite=True)
 
 
-def load_checkpoint(path, params):
-    """Restore ``params`` from a checkpoint; returns ``(epochs_done, history)``."""
+def load_checkpoint(path, params, fingerprint=""):
+    """Restore ``params`` from a checkpoint; returns ``(epochs_done, history)``.
+
+    Refuses a checkpoint written by a run with other settings (``fingerprint``).
+    """
     with np.load(path) as data:
         state = {key: data[key] for key in data.files}
+    stored = bytes(state.get("fingerprint", np.zeros(0, np.uint8))).decode("utf-8")
+    if stored != fingerprint:
+        raise ValueError(f"checkpoint {path} was written by a run with other settings (config, "
+                         "texture, bands or observations); remove it or rerun with those "
+                         "settings")
     params.restore(state)
     history = json.loads(bytes(state["history"]).decode("utf-8"))
     return int(state["epoch"]), history
 
 
 def _epoch_summary(records):
+    """Mean of each loss term over an epoch's steps (skipped steps counted, not averaged)."""
     records = [r for r in records if r is not None]
     if not records:
         return {}
-    return {key: float(np.mean([r[key] for r in records])) for key in records[0]}
+    taken = [r for r in records if not r.get("skipped")] or records
+    summary = {key: float(np.mean([r[key] for r in taken])) for key in records[0]}
+    summary["skipped"] = float(sum(r.get("skipped", 0.0) for r in records))
+    return summary
 
 
 @contextlib.contextmanager
@@ -118,9 +145,13 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
     weights = active_weights(config, weights)
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
     cache = PatchCache(store, atlas)
+    fingerprint = run_fingerprint(config, atlas.resolution, store.bands, len(store))
     history, first = [], 0
     if checkpoint is not None and Path(checkpoint).is_file():
-        first, history = load_checkpoint(checkpoint, params)
+        first, history = load_checkpoint(checkpoint, params, fingerprint)
+        if first > config.iterations:
+            raise ValueError(f"checkpoint {checkpoint} holds {first} epochs, more than the "
+                             f"{config.iterations} asked for")
     with kernel_threads(1 if config.deterministic else None), \
             tqdm(total=config.iterations, initial=first, desc=description, unit="epoch",
                  disable=not progress) as bar:
@@ -132,7 +163,7 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
             summary["epoch"] = epoch + 1
             history.append(summary)
             if checkpoint is not None:
-                save_checkpoint(checkpoint, params, epoch + 1, history)
+                save_checkpoint(checkpoint, params, epoch + 1, history, fingerprint)
             bar.set_postfix(loss=f"{summary.get('total', float('nan')):.3g}")
             bar.update()
     return history, cache
@@ -205,7 +236,8 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
         for band, name in enumerate(store.bands):
             if f"rho_sss.{name}" in start:
                 rho_sss[band] = np.asarray(start[f"rho_sss.{name}"], np.float32)
-    params = params or MapParameters(maps, rho_sss, config.learning_rates, optimized)
+    if params is None:
+        params = MapParameters(maps, rho_sss, config.learning_rates, optimized)
     history, cache = optimize_maps(store, atlas, config, params, checkpoint, progress, weights,
                                    description)
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)

@@ -183,8 +183,8 @@ def test_interrupted_run_resumes_to_the_same_maps(run, capture_dir, config_file,
 
     original = static.save_checkpoint
 
-    def interrupt_after_first_epoch(path, params, epoch, history):
-        original(path, params, epoch, history)
+    def interrupt_after_first_epoch(path, params, epoch, history, *args):
+        original(path, params, epoch, history, *args)
         if epoch == 1:
             raise KeyboardInterrupt
 

@@ -108,3 +108,23 @@ def test_an_interrupted_fit_resumes_to_the_same_maps(sphere_problem, tmp_path, m
     assert len(resumed.history) == len(straight.history) == 5
     for name, values in straight.maps.items():
         np.testing.assert_allclose(resumed.maps[name], values, atol=1e-5, err_msg=name)
+
+
+def test_a_checkpoint_of_another_run_is_refused(sphere_problem, tmp_path):
+    from polarbssrdf.inverse.config import static_config
+    from polarbssrdf.inverse.static import run_polarimetric_fit
+
+    atlas, store, _, _ = sphere_problem
+    checkpoint = tmp_path / "checkpoint.npz"
+    run_polarimetric_fit(store, atlas, static_config(iterations=1), progress=False,
+                         checkpoint=checkpoint)
+    with pytest.raises(ValueError, match="other settings"):
+        run_polarimetric_fit(store, atlas, static_config(iterations=2, seed=3), progress=False,
+                             checkpoint=checkpoint)
+    # more epochs extend the run; fewer than the checkpoint holds cannot be had
+    extended = run_polarimetric_fit(store, atlas, static_config(iterations=2), progress=False,
+                                    checkpoint=checkpoint)
+    assert len(extended.history) == 2
+    with pytest.raises(ValueError, match="more than"):
+        run_polarimetric_fit(store, atlas, static_config(iterations=1), progress=False,
+                             checkpoint=checkpoint)
