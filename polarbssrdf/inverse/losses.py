@@ -55,6 +55,16 @@ def _mean(values, count):
 def data_losses(predicted, observed, glossy_I_s, weight, mean_sss, noise, count):
     """The data terms of one band: ``{"sss", "s", "psi", "phi"}`` as Dr.Jit scalars (means).
 
+    The means of :func:`data_loss_terms` over ``count`` texel-views.
+    """
+    return {name: _mean(values, count)
+            for name, values in data_loss_terms(predicted, observed, glossy_I_s, weight, mean_sss,
+                                                noise).items()}
+
+
+def data_loss_terms(predicted, observed, glossy_I_s, weight, mean_sss, noise):
+    """Per texel-view contributions to the data terms of one band (arrays; see :func:`data_losses`).
+
     Parameters
     ----------
     predicted, observed : tuple of 4 Float
@@ -72,8 +82,6 @@ def data_losses(predicted, observed, glossy_I_s, weight, mean_sss, noise, count)
         The patch's mean observed ``I_sss`` (image scale).
     noise : float
         ``photometric_noise``: the residual unit is ``sigma = noise * mean_sss``.
-    count : float or Float
-        Normalizer of the means (the number of weighted texel-views).
     """
     sss_hat, zeta_hat, s_hat = separations(*predicted)
     sss, zeta, s = separations(*observed)
@@ -81,13 +89,13 @@ def data_losses(predicted, observed, glossy_I_s, weight, mean_sss, noise, count)
     xi_hat = s_hat - glossy_I_s
     xi = s - glossy_I_s
     losses = {
-        "sss": _mean(weight * dr.square((sss_hat - sss) * inv_sigma), count),
-        "s": _mean(weight * dr.square((s_hat - s) * inv_sigma), count),
+        "sss": weight * dr.square((sss_hat - sss) * inv_sigma),
+        "s": weight * dr.square((s_hat - s) * inv_sigma),
     }
     # W_phi of eq. 31: the subsurface image relative to its mean
     phi_weight = weight * dr.maximum(sss, 0.0) / mean_sss
-    losses["phi"] = _mean(phi_weight * (dr.square((zeta_hat - zeta) * inv_sigma)
-                                        + dr.square((xi_hat - xi) * inv_sigma)), count)
+    losses["phi"] = phi_weight * (dr.square((zeta_hat - zeta) * inv_sigma)
+                                  + dr.square((xi_hat - xi) * inv_sigma))
     dominated = (sss > dr.abs(s)) & (sss > 0.0)
     # where the subsurface light does not dominate, psi is undefined (I_sss <= 0 gives inf):
     # select before squaring, so neither the value nor the gradient meets 0 x inf
@@ -98,5 +106,5 @@ def data_losses(predicted, observed, glossy_I_s, weight, mean_sss, noise, count)
     dominated &= psi < 1.0
     # psi is a ratio of images: its noise is about sigma / I_sss
     residual = (psi_hat - psi) * safe_sss * inv_sigma
-    losses["psi"] = _mean(dr.select(dominated, weight * dr.square(residual), 0.0), count)
+    losses["psi"] = dr.select(dominated, weight * dr.square(residual), 0.0)
     return losses

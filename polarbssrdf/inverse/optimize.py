@@ -26,7 +26,7 @@ import numpy as np
 from polarbssrdf._arrays import to_jit
 from polarbssrdf.geometry.height import normals_from_height
 from polarbssrdf.inverse.config import OPTIMIZED
-from polarbssrdf.inverse.losses import DATA_TERMS, data_losses
+from polarbssrdf.inverse.losses import DATA_TERMS, data_loss_terms
 from polarbssrdf.inverse.model import half_vector_cosine, jit_types, predict_stokes
 from polarbssrdf.inverse.regularizers import (
     displacement_laplacian,
@@ -199,6 +199,8 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True):
     """
     stokes, values, normal, _ = predicted_patch(params, prepared, config)
     weight = usable_views(prepared, normal, config)
+    # the albedo solve and every loss term read these: compute them once
+    dr.eval(stokes.glossy, stokes.subsurface, weight)
     T = params.resolution
     flat_rho = params.rho_sss.reshape(len(params.rho_sss), T * T)
     solved = flat_rho[:, prepared.window_index]
@@ -208,15 +210,19 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True):
     Float = type(weight)
     count = dr.maximum(dr.detach(dr.sum(weight)), 1.0)
     glossy_I_s = stokes.glossy[1]  # I0 - I90 of the glossy lobes is S1
-    terms = {name: Float(0.0) for name in DATA_TERMS}
+    per_view = {name: Float(0.0) for name in DATA_TERMS}
     for band, observed in enumerate(prepared.observed):
         rho = _per_view(to_jit(Float, solved[band], np.float32), prepared)
         predicted = stokes.analyser_images(rho)
-        band_terms = data_losses(predicted, observed, glossy_I_s, weight,
-                                 dr.opaque(Float, prepared.image_scale), config.photometric_noise,
-                                 count)
+        band_terms = data_loss_terms(predicted, observed, glossy_I_s, weight,
+                                     dr.opaque(Float, prepared.image_scale),
+                                     config.photometric_noise)
         for name in DATA_TERMS:
-            terms[name] = terms[name] + band_terms[name] / len(prepared.observed)
+            per_view[name] = per_view[name] + band_terms[name]
+    # one kernel for every band and term; reducing each separately would recompute the model
+    dr.eval(*per_view.values())
+    terms = {name: dr.sum(values) / (count * len(prepared.observed))
+             for name, values in per_view.items()}
     stencils = prepared.stencils
     terms["H_magnitude"] = displacement_magnitude(values["displacement"], stencils)
     terms["H_laplacian"] = displacement_laplacian(values["displacement"], stencils)
