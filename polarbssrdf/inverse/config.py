@@ -61,8 +61,20 @@ class StaticConfig:
         epoch takes at least this many steps.
     weights, bounds, initial, learning_rates : dict
         See :data:`STATIC_WEIGHTS`, :data:`BOUNDS`, :data:`INITIAL`, :data:`LEARNING_RATES`.
+    regularization_scale : float
+        Factor on every regularizer weight (eq. 32-35). The paper's weights
+        balance regularizers against plain sums of squared image residuals;
+        against this stage's chi-square means (see :mod:`.losses`) they
+        regularize about ten times less than measured best, so the default
+        scales them all by one factor and keeps the paper's ratios.
     gradient_clip : float
         Maximum global gradient norm (the authors' 2.0).
+    final_learning_rate : float
+        The learning rates decay exponentially over the epochs to this
+        fraction of their start values. RMSProp steps a texel by about its
+        learning rate whatever the gradient, so with a constant rate the maps
+        jitter by about the rate around the optimum; the decay removes that
+        floor (1 keeps the rates constant, as the authors' code does).
     specular_half_cosine : float
         Texel-views whose half vector is within ``acos`` of this of the normal
         train the specular lobe (single scattering held), the others the
@@ -106,7 +118,9 @@ class StaticConfig:
     bounds: dict = dataclasses.field(default_factory=lambda: dict(BOUNDS))
     initial: dict = dataclasses.field(default_factory=lambda: dict(INITIAL))
     learning_rates: dict = dataclasses.field(default_factory=lambda: dict(LEARNING_RATES))
+    regularization_scale: float = 1.0
     gradient_clip: float = 2.0
+    final_learning_rate: float = 0.1
     specular_half_cosine: float = 0.86
     separate_lobes: bool = False
     photometric_noise: float = 0.01
@@ -147,6 +161,8 @@ class StaticConfig:
                 raise ValueError(f"config: initial.{name} = {value} is outside bounds.{name} "
                                  f"[{low}, {high}]")
         _finite(self.gradient_clip, "gradient_clip", minimum=0.0)
+        _finite(self.regularization_scale, "regularization_scale", minimum=0.0)
+        _finite(self.final_learning_rate, "final_learning_rate", minimum=1e-6, maximum=1.0)
         _finite(self.specular_half_cosine, "specular_half_cosine", minimum=0.0, maximum=1.0)
         _finite(self.min_cosine, "min_cosine", minimum=0.0, maximum=1.0)
         _finite(self.photometric_noise, "photometric_noise", minimum=1e-6)

@@ -62,10 +62,16 @@ class MapParameters:
         self.fixed = {name: TensorXf(np.ascontiguousarray(maps[name], np.float32))
                       for name in OPTIMIZED if name not in self.optimized}
         self.optimizer = dr.opt.RMSProp(lr=1e-3, mask_updates=True)
+        self.learning_rates = {name: float(learning_rates[name]) for name in self.optimized}
         for name in self.optimized:
             self.optimizer[name] = TensorXf(np.ascontiguousarray(maps[name], np.float32))
-            self.optimizer.set_learning_rate({name: float(learning_rates[name])})
+        self.scale_learning_rates(1.0)
         self.rho_sss = np.array(rho_sss, dtype=np.float32)
+
+    def scale_learning_rates(self, factor):
+        """Set every map's learning rate to ``factor`` times its start value."""
+        self.optimizer.set_learning_rate({name: rate * float(factor)
+                                          for name, rate in self.learning_rates.items()})
 
     def tensor(self, name):
         return self.optimizer[name] if name in self.optimized else self.fixed[name]
@@ -233,8 +239,10 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True):
 
 
 def active_weights(config, data_weights=None):
-    """Loss weights with the ablation switches applied."""
+    """Loss weights with the regularization scale and the ablation switches applied."""
     weights = dict(data_weights if data_weights is not None else config.weights)
+    for name in REGULARIZER_TERMS:
+        weights[name] = weights[name] * config.regularization_scale
     if not config.polarimetric:
         weights["psi"] = weights["phi"] = 0.0
     return weights

@@ -156,6 +156,8 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
             tqdm(total=config.iterations, initial=first, desc=description, unit="epoch",
                  disable=not progress) as bar:
         for epoch in range(first, config.iterations):
+            params.scale_learning_rates(
+                config.final_learning_rate ** (epoch / max(config.iterations - 1, 1)))
             records = [optimizer_step(params, cache.get(patch), config, weights)
                        for patch in patch_order(patches, epoch, config.seed,
                                                 config.min_steps_per_epoch)]
