@@ -8,10 +8,19 @@
    the s axis of the plane of incidence).
 2. :func:`diffused_exitance`: ``M = G * (rho_sss E)``, the albedo-weighted
    transmitted irradiance blurred by the normalized sum of Gaussians of the
-   skin's reflectance profile (eq. 44-45; ``rho_sss`` is the total diffuse
-   reflectance ``R_bar`` of eq. 47 at the entry point).
+   skin's reflectance profile (eq. 44-45; ``rho_sss`` is the lobe albedo of
+   eq. 19).
 3. The ``pexitance`` emitter turns ``M`` into radiance leaving through Fresnel
    transmission (:mod:`polarbssrdf.plugins.pexitance`).
+
+Energy: ``pexitance`` emits ``M T+(theta_o) / pi``, whose hemispherical
+integral is ``c(eta) M`` with ``c(eta) = int T+ cos / pi``
+(:func:`subsurface_exit_fraction`, 0.92 at eta 1.42). The multipole totals
+``R_bar`` (eq. 42, 47) already are the flux that leaves through the surface,
+so the lobe albedo of a skin is ``rho_sss = R_bar / c(eta)``, and the
+exitance of the layered model (:func:`layered_exitance`, flux ``R_bar E``)
+is handed to ``pexitance`` as ``layered_exitance / c(eta)``
+(:func:`emitted_exitance`); see docs/biophysical.md.
 
 Without blur, ``M = rho_sss E`` and 1-3 reproduce ``pbssrdf``'s local
 subsurface lobe exactly (up to texture interpolation).
@@ -206,21 +215,34 @@ def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_int
     ``S = sum_n (G_Rin * R_in  G_Rob * R_ob)^n  G_Rin * (R_in  G_Tof * (T_of E))``
     (each ``G * X`` a texture-space blur of the per-texel product ``X``). The
     series stops when a term adds less than ``tolerance`` of the total.
-    Without blur this is ``R_bar E`` with ``R_bar`` of eq. 47.
+    Without blur this is ``R_bar E`` with ``R_bar`` of eq. 47: the flux that
+    leaves the skin (divide by :func:`subsurface_exit_fraction` for the map
+    ``pexitance`` takes, :func:`emitted_exitance`).
 
     Parameters
     ----------
-    irradiance : (T, T) array
+    irradiance : (T, T) array or Dr.Jit TensorXf
         Transmitted irradiance ``E`` (:func:`transmitted_irradiance`).
     totals : LayerTotals
-        Per-texel layer totals of one band (:func:`layer_totals_maps`).
+        Per-texel layer totals of one band (:func:`layer_totals_maps`), NumPy
+        arrays, or Dr.Jit tensors (then the result is a TensorXf of the same
+        backend, differentiable with respect to the totals and ``E``).
     kernels : dict
         That band's normalized kernels (:func:`layer_profile_kernels`).
     atlas : TexelAtlas
     """
+    from_numpy = isinstance(totals.R_out_f, np.ndarray) and isinstance(irradiance, np.ndarray)
+
     def blur(name, values):
         weights, variances = kernels[name]
         return blur_sum_of_gaussians(values, weights, variances, atlas.texel_size_mm, atlas.valid)
+
+    def peak(values):
+        if from_numpy:
+            return float(np.abs(values).max())
+        import drjit as dr
+
+        return float(dr.max(dr.abs(dr.detach(values.array)), axis=None)[0])
 
     into_dermis = blur("T_out_f", totals.T_out_f * irradiance)
     upward = blur("R_in", totals.R_in * into_dermis)
@@ -228,7 +250,43 @@ def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_int
     for _ in range(max_interreflections):
         upward = blur("R_in", totals.R_in * blur("R_out_b", totals.R_out_b * upward))
         total_upward = total_upward + upward
-        if np.abs(upward).max() <= tolerance * max(np.abs(total_upward).max(), 1e-30):
+        if peak(upward) <= tolerance * max(peak(total_upward), 1e-30):
             break
-    return (blur("R_out_f", totals.R_out_f * irradiance)
-            + blur("T_out_b", totals.T_out_b * total_upward)).astype(np.float32)
+    exitance = (blur("R_out_f", totals.R_out_f * irradiance)
+                + blur("T_out_b", totals.T_out_b * total_upward))
+    return exitance.astype(np.float32) if from_numpy else exitance
+
+
+_EXIT_QUADRATURE = 64
+
+
+def subsurface_exit_fraction(eta):
+    """``c(eta) = int T+(theta) cos(theta) / pi dw`` over the hemisphere, unitless.
+
+    The share of an exitance ``M`` that ``pexitance`` (and the subsurface lobe
+    of eq. 19, ``rho_sss E T+(theta_o) / pi``) actually emits: its radiance
+    ``M T+(theta_o) / pi`` integrates to ``c(eta) M``. ``T+`` is
+    :func:`polarbssrdf.optics.fresnel.fresnel_transmittance` (the function the
+    exit column uses) for light leaving a medium of relative index ``eta``
+    (reciprocity: the same as entering it), integrated by 64-point
+    Gauss-Legendre in ``cos(theta)``: 0.939, 0.920, 0.894 at eta 1.3, 1.42,
+    1.6. Broadcasts over arrays of eta (> 0)."""
+    eta = np.asarray(eta, dtype=np.float64)
+    if not np.all(np.isfinite(eta) & (eta > 0)):
+        raise ValueError("eta must be finite and > 0")
+    x, w = np.polynomial.legendre.leggauss(_EXIT_QUADRATURE)
+    mu, w = 0.5 * (x + 1.0), 0.5 * w
+    flat = np.ravel(eta)
+    unique, inverse = np.unique(flat, return_inverse=True)
+    T_plus, _ = plus_minus(*fresnel_transmittance(mu[None, :], unique[:, None]))
+    values = 2.0 * np.asarray(T_plus, dtype=np.float64) @ (mu * w)
+    return values[inverse].reshape(eta.shape)
+
+
+def emitted_exitance(exitance, eta):
+    """The map to hand ``pexitance`` so that it emits the flux ``exitance``: ``M / c(eta)``.
+
+    ``exitance`` is a flux leaving the surface (:func:`layered_exitance`,
+    ``R_bar E``); ``pexitance`` emits ``c(eta)`` of the map it gets
+    (:func:`subsurface_exit_fraction`). float32 (T, T)."""
+    return (np.asarray(exitance, dtype=np.float64) / subsurface_exit_fraction(eta)).astype(np.float32)

@@ -47,7 +47,15 @@ def absorption_from_basis(basis, C_m, beta_m, C_h_out, C_h_in):
     """(sigma_a epidermis, sigma_a dermis) from a :func:`chromophore_basis`
     (or its band averages); same formulas as the two functions above."""
     C_m, beta_m, C_h_out, C_h_in = (np.asarray(x, dtype=float)[..., None] for x in (C_m, beta_m, C_h_out, C_h_in))
-    em, pm, bl, base = basis["eumelanin"], basis["pheomelanin"], basis["blood"], basis["baseline"]
-    epi = C_m * (beta_m * em + (1.0 - beta_m) * pm) + C_h_out * bl + (1.0 - C_m - C_h_out) * base
-    der = C_h_in * bl + (1.0 - C_h_in) * base
+    return layer_absorption(basis["eumelanin"], basis["pheomelanin"], basis["blood"], basis["baseline"],
+                            C_m, beta_m, C_h_out, C_h_in)
+
+
+def layer_absorption(eumelanin, pheomelanin, blood, baseline, C_m, beta_m, C_h_out, C_h_in):
+    """(sigma_a epidermis, sigma_a dermis) in 1/mm from the chromophore
+    absorptions of one sample (or arrays that broadcast with the parameters):
+    the formulas of :func:`epidermis_absorption` and :func:`dermis_absorption`.
+    Plain arithmetic, so it also runs on Dr.Jit arrays (with autodiff)."""
+    epi = C_m * (beta_m * eumelanin + (1.0 - beta_m) * pheomelanin) + C_h_out * blood + (1.0 - C_m - C_h_out) * baseline
+    der = C_h_in * blood + (1.0 - C_h_in) * baseline
     return epi, der

@@ -36,6 +36,7 @@ from polarbssrdf.geometry import displace, face_mesh, texel_atlas, to_mitsuba, u
 from polarbssrdf.geometry.face import face_region_masks
 from polarbssrdf.render.lightstage import ring_light_stage
 from polarbssrdf.render.subsurface import (
+    emitted_exitance,
     layer_profile_kernels,
     layer_totals_maps,
     layered_exitance,
@@ -122,12 +123,28 @@ def object_mesh(name):
 
 
 def subsurface_albedo(maps, bands):
-    """(n_bands, T, T) total diffuse reflectance of the two-layer skin per band (eq. 47)."""
+    """(n_bands, T, T) subsurface lobe albedo ``rho_sss = R_bar / c(eta)`` per band.
+
+    ``R_bar`` is the total diffuse reflectance of the two-layer skin (eq. 47),
+    the flux that leaves the skin; ``c(eta)`` the share of a lobe albedo that
+    the eq. 19 lobe (``rho_sss T+(theta_o) / pi``) emits
+    (:func:`~polarbssrdf.render.subsurface.subsurface_exit_fraction`), so a lobe
+    with this albedo emits ``R_bar E`` (see docs/biophysical.md)."""
+    from polarbssrdf.render.subsurface import subsurface_exit_fraction
     from polarbssrdf.skin.model import band_reflectance
 
     reflectance = band_reflectance(maps["C_m"], maps["beta_m"], maps["C_h_out"], maps["C_h_in"],
                                    bands, eta=maps["eta"])
+    reflectance = reflectance / subsurface_exit_fraction(maps["eta"])[..., None]
     return np.moveaxis(np.asarray(reflectance, dtype=np.float32), -1, 0)
+
+
+def subsurface_exitance(irradiance, state, kernels, band_index):
+    """The ``pexitance`` map of one band: the layered exitance (eq. 46, the flux
+    ``R_bar E`` after diffusion) divided by ``c(eta)``, so that the emitted flux
+    is the multipole's (:func:`~polarbssrdf.render.subsurface.emitted_exitance`)."""
+    exitance = layered_exitance(irradiance, state.layers[band_index], kernels[band_index], state.atlas)
+    return emitted_exitance(exitance, state.maps["eta"])
 
 
 @dataclasses.dataclass
@@ -178,7 +195,7 @@ class FrameState:
     maps: dict
     mesh: object
     atlas: object
-    albedo: np.ndarray  # (n_bands, T, T), eq. 47
+    albedo: np.ndarray  # (n_bands, T, T), lobe albedo R_bar / c(eta) (eq. 47)
     layers: list  # per band, LayerTotals of (T, T) maps
 
 
@@ -207,9 +224,7 @@ def render_frame_view(prepared, state, camera, rng=None):
     channels, channel_names = {}, None
     noise = raw_sensor(prepared.stage, camera.name) if settings.raw else None
     for band_index, band in enumerate(prepared.bands):
-        exitance = layered_exitance(irradiance, state.layers[band_index],
-                                    prepared.kernels[band_index], state.atlas)
-        set_exitance(scene, exitance)
+        set_exitance(scene, subsurface_exitance(irradiance, state, prepared.kernels, band_index))
         # a distinct, reproducible sample pattern per image
         seed = image_seed(settings.seed, state.index, camera_index, band_index)
         images, channel_names = render_analyser_images(scene, settings.spp, seed, channel_names)
