@@ -1,0 +1,451 @@
+"""The biophysical stage: melanin and hemoglobin maps from subsurface albedo maps (supplement sec. 5.3).
+
+``fit_biophysical(albedo_maps, bands, atlas)`` recovers ``C_m, beta_m,
+C_h_out, C_h_in`` per texel by the paper's coordinate descent (eq. 40-47):
+
+a. a start per texel from the fast per-texel inversion
+   (:func:`polarbssrdf.skin.invert_bands`, eq. 47) on block-averaged maps
+   (blocks of about ``start_texel_mm``, where the blur is negligible),
+   upsampled bilinearly;
+b. the sum-of-Gaussians kernels of the five layer profiles (eq. 40, 43) fitted
+   at the parameters of the median-intensity texel
+   (:func:`polarbssrdf.render.subsurface.layer_profile_kernels`, the kernels
+   synth renders with), homogeneous over the face (eq. 45);
+c. at full resolution, Adam (``drjit.opt``) on the four maps so that the eq. 46
+   rendering (:class:`~polarbssrdf.inverse.biophysical_model.BiophysicalModel`:
+   the texture-space layered blur of synth, differentiable) matches the input
+   (eq. 41), with an optional smoothness prior; clamped to the bounds after
+   every step;
+d. (b) and (c) repeated until the kernels change by less than
+   ``kernel_tolerance``.
+
+Input albedos are lobe albedos (``rho_sss`` of eq. 19, what the static stage
+recovers and synth's truth maps hold); the skin model's flux ``R_bar`` is
+``c(eta) rho_sss`` (docs/biophysical.md). Texels whose input is not finite,
+outside [0, 1] or of confidence 0 in any band do not enter the data term,
+take values filled in from their valid neighbours and are flagged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from polarbssrdf.inverse.biophysical_model import PARAMETERS, BiophysicalModel, jit_types
+from polarbssrdf.skin.inversion import BOUNDS as INVERSION_BOUNDS
+
+LEARNING_RATES = {"C_m": 3e-4, "beta_m": 3e-3, "C_h_out": 3e-4, "C_h_in": 2e-4}
+"""Adam's first step size per map (fractions per step), decayed to ``final_lr_fraction`` of it."""
+
+
+START_ETA_STEP = 0.005
+"""Texels of the start's inversion share one eta per bin of this width."""
+
+
+@dataclasses.dataclass
+class BiophysicalConfig:
+    """Settings of :func:`fit_biophysical`.
+
+    Attributes
+    ----------
+    iterations : int
+        Adam steps per round of (c).
+    rounds : int
+        Maximum rounds of (b)-(c); the fit stops earlier once the kernels change
+        by less than ``kernel_tolerance`` (largest absolute change of a
+        normalized SoG weight).
+    learning_rates : dict
+        First step size per map; decayed geometrically to ``final_lr_fraction``.
+    smoothness : float
+        Weight of the smoothness prior: mean squared difference of neighbouring
+        texels of each map, in units of its bounds range, against the data term
+        (mean squared relative residual over ``albedo_noise``).
+    albedo_noise : float
+        Expected relative noise of the albedo maps (scales the data term).
+    start_texel_mm : float
+        Block size (mm) of the start's per-texel inversion (a); 0 inverts at full resolution.
+    bounds : dict
+        Physical box of each map (those of the per-texel inversion by default).
+    thickness_mm, eta : float
+        Epidermis thickness; refractive index where the input has no ``eta`` map.
+    """
+
+    iterations: int = 100
+    rounds: int = 3
+    kernel_tolerance: float = 0.01
+    learning_rates: dict = dataclasses.field(default_factory=lambda: dict(LEARNING_RATES))
+    final_lr_fraction: float = 0.05
+    smoothness: float = 0.0
+    albedo_noise: float = 0.01
+    start_texel_mm: float = 2.0
+    bounds: dict = dataclasses.field(default_factory=lambda: dict(INVERSION_BOUNDS))
+    thickness_mm: float = 0.25
+    eta: float = 1.4
+
+    def __post_init__(self):
+        for name in ("iterations", "rounds"):
+            value = getattr(self, name)
+            if int(value) != value or value < 0 or (name == "rounds" and value < 1):
+                raise ValueError(f"{name} must be a {'positive' if name == 'rounds' else 'non-negative'} "
+                                 f"integer, got {value!r}")
+        for name in ("kernel_tolerance", "smoothness", "albedo_noise", "start_texel_mm"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if not self.albedo_noise > 0:
+            raise ValueError("albedo_noise must be > 0")
+        if not 0 < self.final_lr_fraction <= 1:
+            raise ValueError("final_lr_fraction must be in (0, 1]")
+        self.learning_rates = {**LEARNING_RATES, **self.learning_rates}
+        self.bounds = {**INVERSION_BOUNDS, **{k: tuple(v) for k, v in self.bounds.items()}}
+        for name in set(self.learning_rates) | set(self.bounds):
+            if name not in PARAMETERS:
+                raise ValueError(f"unknown map {name!r}; known: {list(PARAMETERS)}")
+        for name, (low, high) in self.bounds.items():
+            if not (0.0 <= low < high <= 1.0):
+                raise ValueError(f"bounds of {name} must satisfy 0 <= low < high <= 1, got {(low, high)}")
+        for name, value in self.learning_rates.items():
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"learning rate of {name} must be > 0, got {value!r}")
+        if not (self.thickness_mm > 0 and math.isfinite(self.thickness_mm)):
+            raise ValueError("thickness_mm must be > 0")
+        if not (math.isfinite(self.eta) and self.eta > 1):
+            raise ValueError("eta must be > 1")
+
+
+@dataclasses.dataclass
+class BiophysicalResult:
+    """Maps (T, T float32) of the fit and what it did.
+
+    ``residual`` is the RMS over bands of rendered minus input albedo (0 at
+    flagged texels), ``flagged`` marks surface texels whose input was invalid
+    (their parameters are filled from neighbours). ``history`` has one entry per
+    round: loss before/after, kernel change, seconds."""
+
+    maps: dict
+    residual: np.ndarray
+    flagged: np.ndarray
+    kernels: list
+    history: list
+    predicted: np.ndarray
+    start: dict
+    seconds: float
+
+    def channels(self):
+        """Channels of the stage's map file: ``C_m, beta_m, C_h_out, C_h_in, residual, flagged``."""
+        out = {name: np.ascontiguousarray(self.maps[name], dtype=np.float32) for name in PARAMETERS}
+        out["residual"] = np.ascontiguousarray(self.residual, dtype=np.float32)
+        out["flagged"] = self.flagged.astype(np.float32)
+        return out
+
+
+def albedo_stack(albedo_maps, bands, shape):
+    """(n_bands, T, T) float64 of ``rho_sss.<band>`` (or ``<band>``) channels; clear errors."""
+    if len(bands) < 4:
+        raise ValueError(f"need at least 4 bands to fit 4 parameters, got {len(bands)}")
+    stack = []
+    for band in bands:
+        key = next((k for k in (f"rho_sss.{band.name}", band.name) if k in albedo_maps), None)
+        if key is None:
+            raise ValueError(f"missing subsurface albedo map 'rho_sss.{band.name}' (have: "
+                             f"{', '.join(sorted(albedo_maps)) or 'none'})")
+        value = np.asarray(albedo_maps[key], dtype=np.float64)
+        if value.shape != tuple(shape):
+            raise ValueError(f"map {key!r} is {value.shape}, the atlas is {tuple(shape)}")
+        stack.append(value)
+    return np.stack(stack)
+
+
+def fill_from_neighbours(values, known, domain):
+    """``values`` with texels of ``domain`` not ``known`` replaced by a normalized Gaussian
+    average of known neighbours (radius doubling until every one is filled); off
+    ``domain`` too, so the map is finite everywhere."""
+    from scipy.ndimage import gaussian_filter
+
+    out = np.array(values, dtype=np.float64)
+    known = known & np.isfinite(out)
+    if not known.any():
+        raise ValueError("no texel with valid input to fill from")
+    if known.all():
+        return out
+    base = np.where(known, out, 0.0)
+    missing = ~known
+    sigma = 1.0
+    while missing.any():
+        weight = gaussian_filter(known.astype(np.float64), sigma, mode="nearest")
+        total = gaussian_filter(base, sigma, mode="nearest")
+        ok = missing & (weight > 1e-6)
+        out[ok] = total[ok] / weight[ok]
+        missing &= ~ok
+        sigma *= 2.0
+        if sigma > 4 * max(out.shape):
+            out[missing] = base[known].mean()
+            break
+    return out
+
+
+def _block_mean(values, weight, factor):
+    """Weighted means over factor x factor blocks (edge padded)."""
+    T = values.shape[-1]
+    n = -(-T // factor)
+    pad = n * factor - T
+    v = np.pad(values * weight, [(0, 0)] * (values.ndim - 2) + [(0, pad), (0, pad)])
+    w = np.pad(weight.astype(np.float64), [(0, pad), (0, pad)])
+    shape = v.shape[:-2] + (n, factor, n, factor)
+    ws = w.reshape(n, factor, n, factor).sum(axis=(1, 3))
+    vs = v.reshape(shape).sum(axis=(-3, -1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return vs / ws, ws > 0
+
+
+def start_maps(rbar, valid, atlas, bands, eta, config):
+    """Step (a): the per-texel inversion of eq. 47 on block means, upsampled; (T, T) maps."""
+    from scipy.ndimage import zoom
+
+    from polarbssrdf.skin.inversion import invert_bands
+
+    T = valid.shape[0]
+    texel = float(np.median(atlas.texel_size_mm[atlas.valid]))
+    factor = max(1, int(round(config.start_texel_mm / max(texel, 1e-9)))) if config.start_texel_mm > 0 else 1
+    factor = min(factor, T)
+    means, ok = _block_mean(rbar, valid, factor)
+    eta_means, _ = _block_mean(eta, valid, factor)
+    # invert_bands takes one eta: invert texels in bins of START_ETA_STEP
+    bins = np.round(eta_means / START_ETA_STEP) * START_ETA_STEP
+    coarse_maps = {name: np.full(ok.shape, np.nan) for name in PARAMETERS}
+    for value in np.unique(bins[ok]):
+        members = ok & (bins == value)
+        result = invert_bands(np.moveaxis(means[:, members], 0, -1), bands, thickness_mm=config.thickness_mm,
+                              eta=float(value), table_size="default")
+        for name in PARAMETERS:
+            coarse_maps[name][members] = getattr(result, name)
+    out = {}
+    for name in PARAMETERS:
+        coarse = coarse_maps[name]
+        coarse = fill_from_neighbours(coarse, ok, np.ones_like(ok))
+        if factor > 1:
+            # block centres -> texel centres
+            fine = zoom(coarse, factor, order=1, mode="nearest", grid_mode=True)[:T, :T]
+        else:
+            fine = coarse
+        low, high = config.bounds[name]
+        out[name] = np.clip(fine, low, high)
+    return out, factor
+
+
+def median_intensity_texel(observed, valid):
+    """Flat index of the valid texel of median mean-over-bands albedo."""
+    intensity = observed.mean(axis=0).ravel()
+    index = np.flatnonzero(valid.ravel())
+    order = np.argsort(intensity[index])
+    return int(index[order[len(order) // 2]])
+
+
+def fit_kernels(maps, texel, bands, eta, config):
+    """Step (b): the layer kernels at the parameters of one texel (eq. 40, 43, 45)."""
+    from polarbssrdf.render.subsurface import layer_profile_kernels
+    from polarbssrdf.skin.parameters import SkinParameters
+
+    values = {name: float(np.ravel(maps[name])[texel]) for name in PARAMETERS}
+    skin = SkinParameters(**values, thickness_mm=config.thickness_mm, eta=float(np.ravel(eta)[texel]))
+    return layer_profile_kernels(bands, skin)
+
+
+def kernel_change(old, new):
+    """Largest absolute change of a normalized SoG weight over bands and profiles."""
+    return max(float(np.max(np.abs(np.asarray(o[name][0]) - np.asarray(n[name][0]))))
+               for o, n in zip(old, new) for name in o)
+
+
+class FitLoss:
+    """The loss of step (c) (eq. 41 + smoothness prior) over Dr.Jit parameter arrays."""
+
+    def __init__(self, model, observed, weight, config):
+        Float, UInt32, _ = jit_types()
+        self.model = model
+        self.config = config
+        T = model.shape[0]
+        count = max(int(weight.sum()), 1) * len(model.bands)
+        scale = 1.0 / (config.albedo_noise * np.maximum(observed, 1e-3))
+        self.observed = [Float(observed[b].ravel().astype(np.float32)) for b in range(len(model.bands))]
+        self.scale = [Float((scale[b] * weight).ravel().astype(np.float32)) for b in range(len(model.bands))]
+        self.norm = 1.0 / count
+        surface = model.atlas.valid
+        index = np.arange(T * T).reshape(T, T)
+        pairs = []
+        for a, b in ((index[:, :-1], index[:, 1:]), (index[:-1, :], index[1:, :])):
+            both = surface.ravel()[a.ravel()] & surface.ravel()[b.ravel()]
+            pairs.append((a.ravel()[both], b.ravel()[both]))
+        first = np.concatenate([p[0] for p in pairs])
+        second = np.concatenate([p[1] for p in pairs])
+        self.pairs = (UInt32(first.astype(np.uint32)), UInt32(second.astype(np.uint32)))
+        self.pair_norm = 1.0 / max(len(first), 1)
+
+    def data_terms(self, params):
+        """Per band, the rendered albedo (flat Float)."""
+        return [self.model.render(params, b) for b in range(len(self.model.bands))]
+
+    def __call__(self, params, predicted=None):
+        import drjit as dr
+
+        Float, _, _ = jit_types()
+        predicted = predicted or self.data_terms(params)
+        loss = Float(0.0)
+        for b, value in enumerate(predicted):
+            r = (value - self.observed[b]) * self.scale[b]
+            loss += dr.sum(r * r) * self.norm
+        if self.config.smoothness > 0:
+            prior = Float(0.0)
+            for name in PARAMETERS:
+                low, high = self.config.bounds[name]
+                x = params[name]
+                d = (dr.gather(Float, x, self.pairs[0]) - dr.gather(Float, x, self.pairs[1])) / (high - low)
+                prior += dr.sum(d * d) * self.pair_norm
+            loss += self.config.smoothness * prior
+        return loss
+
+
+def _optimize(loss_fn, maps, held, config, frozen):
+    """Step (c): Adam on the four maps (flat), clamped after every step; returns maps and losses."""
+    import drjit as dr
+    import drjit.opt  # noqa: F401
+
+    Float, _, _ = jit_types()
+    names = [n for n in PARAMETERS if n not in held]
+    fixed = {n: Float(np.asarray(maps[n], np.float32).ravel()) for n in PARAMETERS if n in held}
+    opt = dr.opt.Adam(lr=1e-3)
+    freeze = Float(frozen.ravel().astype(np.float32))  # 1 where a texel may move
+    for n in names:
+        opt[n] = Float(np.asarray(maps[n], np.float32).ravel())
+    steps = int(config.iterations)
+    decay = config.final_lr_fraction ** (1.0 / max(steps - 1, 1))
+    first = None
+    last = None
+    for step in range(steps):
+        for n in names:
+            opt.set_learning_rate({n: config.learning_rates[n] * decay**step})
+        params = {**fixed, **{n: opt[n] for n in names}}
+        loss = loss_fn(params)
+        dr.backward(loss)
+        for n in names:
+            grad = dr.grad(opt[n])
+            dr.set_grad(opt[n], grad * freeze)
+        value = float(loss[0])
+        first = value if first is None else first
+        last = value
+        opt.step()
+        for n in names:
+            low, high = config.bounds[n]
+            opt[n] = dr.clip(opt[n], low, high)
+    out = dict(maps)
+    for n in names:
+        out[n] = np.array(opt[n], dtype=np.float64).reshape(maps[n].shape)
+    return out, first, last
+
+
+def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=None, progress=None):
+    """Biophysical maps from subsurface albedo maps (see the module docstring).
+
+    Parameters
+    ----------
+    albedo_maps : dict
+        ``rho_sss.<band>`` (T, T) lobe albedo maps for every band (result or
+        truth channel names); optional ``eta`` (T, T) refractive index map
+        (else ``config.eta``) and ``confidence`` (texels with 0 are flagged).
+    bands : list of Band
+    atlas : TexelAtlas
+        The mesh's texel atlas at the maps' resolution (texel sizes in mm).
+    config : BiophysicalConfig, optional
+    start : dict, optional
+        Start maps of the four parameters (replaces step a), e.g. the static
+        biophysical maps for a dynamic frame.
+    held : dict, optional
+        Maps held fixed (not optimized), e.g. ``C_m`` and ``beta_m`` of the
+        static frame.
+    progress : callable, optional
+        Called with a message per round.
+
+    Returns
+    -------
+    BiophysicalResult
+    """
+    t0 = time.perf_counter()
+    config = config or BiophysicalConfig()
+    held = dict(held or {})
+    shape = atlas.valid.shape
+    for name in held:
+        if name not in PARAMETERS:
+            raise ValueError(f"held: unknown map {name!r}; known: {list(PARAMETERS)}")
+    observed = albedo_stack(albedo_maps, bands, shape)
+    if "eta" in albedo_maps:
+        eta = np.asarray(albedo_maps["eta"], dtype=np.float64)
+        if eta.shape != tuple(shape):
+            raise ValueError(f"map 'eta' is {eta.shape}, the atlas is {tuple(shape)}")
+        eta_ok = np.isfinite(eta) & (eta > 1.0) & (eta < 3.0)
+    else:
+        eta = np.full(shape, float(config.eta))
+        eta_ok = np.ones(shape, bool)
+    confidence = np.asarray(albedo_maps.get("confidence", np.ones(shape)), dtype=np.float64)
+    if confidence.shape != tuple(shape):
+        raise ValueError(f"map 'confidence' is {confidence.shape}, the atlas is {tuple(shape)}")
+    surface = np.asarray(atlas.valid, bool)
+    good = (surface & eta_ok & np.all(np.isfinite(observed), axis=0) & np.all((observed >= 0) & (observed <= 1), axis=0)
+            & (np.nan_to_num(confidence) > 0))
+    if not good.any():
+        raise ValueError("no texel has valid subsurface albedo in every band (finite, in [0, 1], confidence > 0)")
+    flagged = surface & ~good
+    eta = fill_from_neighbours(np.where(eta_ok, eta, np.nan), eta_ok & surface, surface)
+    observed = np.stack([fill_from_neighbours(o, good, surface) for o in observed])
+    observed = np.clip(observed, 1e-4, 1.0)
+    from polarbssrdf.render.subsurface import subsurface_exit_fraction
+
+    rbar = observed * subsurface_exit_fraction(eta)[None]
+
+    for name, value in list(held.items()) + list((start or {}).items()):
+        if np.asarray(value).shape != tuple(shape):
+            raise ValueError(f"map {name!r} is {np.asarray(value).shape}, the atlas is {tuple(shape)}")
+    if start is None:
+        maps, _ = start_maps(rbar, good, atlas, bands, eta, config)
+    else:
+        missing = [n for n in PARAMETERS if n not in start and n not in held]
+        if missing:
+            raise ValueError(f"start lacks {missing}")
+        maps = {n: np.asarray(start[n], np.float64) for n in PARAMETERS if n in start}
+    for name, value in held.items():
+        maps[name] = np.asarray(value, np.float64)
+    for name in PARAMETERS:
+        low, high = config.bounds[name]
+        maps[name] = np.clip(fill_from_neighbours(maps[name], good & np.isfinite(maps[name]), surface), low, high)
+    start_copy = {n: maps[n].astype(np.float32) for n in PARAMETERS}
+
+    model = BiophysicalModel(bands, atlas, eta, config.thickness_mm, config.bounds)
+    loss_fn = FitLoss(model, observed, good, config)
+    texel = median_intensity_texel(observed, good)
+    kernels = fit_kernels(maps, texel, bands, eta, config)
+    history = []
+    for round_index in range(config.rounds):
+        t_round = time.perf_counter()
+        model.kernels = kernels
+        maps, before, after = _optimize(loss_fn, maps, held, config, surface)
+        for name in PARAMETERS:
+            if name not in held and flagged.any():
+                maps[name] = fill_from_neighbours(maps[name], good, surface)
+        new_kernels = fit_kernels(maps, texel, bands, eta, config)
+        change = kernel_change(kernels, new_kernels)
+        history.append({"round": round_index, "loss_start": before, "loss_end": after,
+                        "kernel_change": change, "seconds": time.perf_counter() - t_round})
+        if progress:
+            progress(f"bio round {round_index}: loss {before} -> {after}, kernel change {change:.4f}")
+        kernels = new_kernels
+        if change < config.kernel_tolerance:
+            break
+    model.kernels = kernels
+    predicted = model.render_numpy(maps)
+    residual = np.sqrt(np.mean((predicted - observed) ** 2, axis=0))
+    residual = np.where(good, residual, 0.0)
+    out = {n: maps[n].astype(np.float32) for n in PARAMETERS}
+    return BiophysicalResult(out, residual.astype(np.float32), flagged, kernels, history,
+                             predicted, start_copy, time.perf_counter() - t0)
