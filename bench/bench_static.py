@@ -80,26 +80,38 @@ def capture_dir(workdir: Path, views: int, texture: int) -> Path:
 
 
 def ensure_capture(workdir: Path, views: int, texture: int) -> tuple[Path, float]:
-    """The cached sphere capture (rendered when missing); returns ``(directory, seconds)``."""
+    """The cached sphere capture (rendered when missing); returns ``(directory, seconds)``.
+
+    Rendered in a child process too: Linux keeps a process's peak RSS across
+    ``exec``, so a parent that had rendered would pass its peak on to every
+    child it starts and spoil their memory figures.
+    """
     directory = capture_dir(workdir, views, texture)
     if (directory / "capture.json").is_file():
         return directory, 0.0
+    start = time.perf_counter()
+    run_child({"phase": "synthesize", "capture": str(directory), "views": views,
+               "texture": texture})
+    return directory, time.perf_counter() - start
+
+
+def child_synthesize(job: dict) -> dict:
+    """Render the sphere capture of ``job`` (analyser images, 3 bands, 4 spp)."""
     import mitsuba as mi
 
     import polarbssrdf  # noqa: F401  (registers the plugins)
     from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
 
     mi.set_variant(VARIANT)
-    start = time.perf_counter()
-    settings = SynthesisSettings(object="sphere", views=views, resolution=max(64, texture),
-                                 texture=texture, spp=SPP, seed=0)
+    directory, texture = Path(job["capture"]), job["texture"]
+    settings = SynthesisSettings(object="sphere", views=job["views"],
+                                 resolution=max(64, texture), texture=texture, spp=SPP, seed=0)
     # a half-written directory of an interrupted run is started over
     synthesize(directory, settings, bands=bench_bands(), overwrite=directory.exists(),
                progress=False)
-    return directory, time.perf_counter() - start
+    return {"capture": str(directory)}
 
 
-# --------------------------------------------------------------------------- child processes
 def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
@@ -291,7 +303,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.child:
         job = json.loads(args.child)
-        phase = {"observe": child_observe, "optimize": child_optimize}[job["phase"]]
+        phase = {"observe": child_observe, "optimize": child_optimize,
+                 "synthesize": child_synthesize}[job["phase"]]
         print(json.dumps(phase(job)))
         return 0
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
