@@ -163,28 +163,12 @@ def fill_from_neighbours(values, known, domain):
     """``values`` with texels of ``domain`` not ``known`` replaced by a normalized Gaussian
     average of known neighbours (radius doubling until every one is filled); off
     ``domain`` too, so the map is finite everywhere."""
-    from scipy.ndimage import gaussian_filter
+    from polarbssrdf.inverse.fill import fill_from_neighbours as fill
 
-    out = np.array(values, dtype=np.float64)
-    known = known & np.isfinite(out)
+    known = known & np.isfinite(np.asarray(values, dtype=np.float64))
     if not known.any():
         raise ValueError("no texel with valid input to fill from")
-    if known.all():
-        return out
-    base = np.where(known, out, 0.0)
-    missing = ~known
-    sigma = 1.0
-    while missing.any():
-        weight = gaussian_filter(known.astype(np.float64), sigma, mode="nearest")
-        total = gaussian_filter(base, sigma, mode="nearest")
-        ok = missing & (weight > 1e-6)
-        out[ok] = total[ok] / weight[ok]
-        missing &= ~ok
-        sigma *= 2.0
-        if sigma > 4 * max(out.shape):
-            out[missing] = base[known].mean()
-            break
-    return out
+    return fill(values, known)
 
 
 def _block_mean(values, weight, factor):

@@ -187,29 +187,9 @@ def usable_view_counts(params, cache, patches, config):
 
 def fill_from_confident(values, confident, sigma=2.0):
     """Replace non-confident texels by the Gaussian-weighted mean of confident ones (growing)."""
-    from scipy.ndimage import gaussian_filter
+    from polarbssrdf.inverse.fill import fill_from_neighbours
 
-    values = np.asarray(values, np.float64)
-    if confident.all():
-        return values.astype(np.float32)
-    if not confident.any():
-        return values.astype(np.float32)
-    filled = np.where(confident, values, 0.0)
-    known = confident.astype(np.float64)
-    result = values.copy()
-    missing = ~confident
-    radius = sigma
-    while missing.any():
-        weight = gaussian_filter(known, radius, mode="nearest")
-        blurred = gaussian_filter(filled, radius, mode="nearest")
-        reached = missing & (weight > 1e-6)
-        result[reached] = blurred[reached] / weight[reached]
-        missing &= ~reached
-        radius *= 2.0
-        if radius > 4 * max(values.shape):
-            result[missing] = float(np.mean(values[confident]))
-            break
-    return result.astype(np.float32)
+    return fill_from_neighbours(values, confident, sigma).astype(np.float32)
 
 
 def final_maps(params, atlas, confidence, band_names):

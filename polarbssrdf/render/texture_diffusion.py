@@ -47,8 +47,11 @@ def half_width_texels(variance_mm2, texel_mm, valid_mask, max_taps=MAX_TAPS_PER_
     return int(min(np.ceil(SIGMAS_COVERED * np.sqrt(variance_mm2) / max(smallest, 1e-9)), max_taps))
 
 
-def _blur_axis(values, texel_mm, valid, variance, half_width, axis, shape, module):
-    """One normalized 1-D Gaussian pass over flat arrays (a single fused kernel)."""
+def _weighted_taps(values, texel_mm, valid, variance, half_width, axis, shape, module):
+    """``(sum_o w_o v x, W = sum_o w_o v)`` over the valid taps of one 1-D Gaussian pass.
+
+    ``values`` may be None: then only the normalization ``W`` is formed.
+    """
     import drjit as dr
 
     Float, UInt32, Int32 = module.Float, module.UInt32, module.Int32
@@ -68,32 +71,24 @@ def _blur_axis(values, texel_mm, valid, variance, half_width, axis, shape, modul
         distance = offset * texel_mm
         weight = dr.exp(-distance * distance * inv_two_variance)
         weight = dr.select(inside, weight * dr.gather(Float, valid, neighbour), 0.0)
-        total += weight * dr.gather(Float, values, neighbour)
+        if values is not None:
+            total += weight * dr.gather(Float, values, neighbour)
         weight_sum += weight
+    return total, weight_sum
+
+
+def _blur_axis(values, texel_mm, valid, variance, half_width, axis, shape, module):
+    """One normalized 1-D Gaussian pass over flat arrays (a single fused kernel)."""
+    import drjit as dr
+
+    total, weight_sum = _weighted_taps(values, texel_mm, valid, variance, half_width, axis,
+                                       shape, module)
     return dr.select(weight_sum > 0, total / weight_sum, 0.0) * valid
 
 
 def _weight_sum(texel_mm, valid, variance, half_width, axis, shape, module):
     """The normalization ``W_i`` of :func:`_blur_axis` (sum of the weights of valid taps)."""
-    import drjit as dr
-
-    Float, UInt32, Int32 = module.Float, module.UInt32, module.Int32
-    rows, cols = shape
-    index = dr.arange(UInt32, rows * cols)
-    row, col = index // cols, index % cols
-    position = Int32(col if axis == 1 else row)
-    length = cols if axis == 1 else rows
-    inv_two_variance = dr.opaque(Float, 0.5 / variance)
-    weight_sum = dr.zeros(Float, rows * cols)
-    for offset in range(-half_width, half_width + 1):
-        target = position + offset
-        inside = (target >= 0) & (target < length)
-        clamped = UInt32(dr.clip(target, 0, length - 1))
-        neighbour = row * cols + clamped if axis == 1 else clamped * cols + col
-        distance = offset * texel_mm
-        weight = dr.exp(-distance * distance * inv_two_variance)
-        weight_sum += dr.select(inside, weight * dr.gather(Float, valid, neighbour), 0.0)
-    return weight_sum
+    return _weighted_taps(None, texel_mm, valid, variance, half_width, axis, shape, module)[1]
 
 
 def _blur_axis_adjoint(grad, texel_mm, valid, variance, half_width, axis, shape, module):
