@@ -10,12 +10,14 @@ is solved per texel and band by least squares on ``L_sss``
 clipped, and every map is clamped to its bounds after the step.
 
 Specular vs single scattering: both lobes are GGX lobes with the same
-Fresnel term and differ only in roughness, so one observation cannot tell
-them apart. As in the authors' code, texel-views whose half vector is close
-to the normal (``cos theta_h > specular_half_cosine``, 0.86) train the
-specular lobe with the single-scattering lobe held, and the others train the
-single-scattering lobe with the specular lobe held; ``eta`` and the
-normals learn from all of them.
+Fresnel term and differ only in roughness, so along the few view angles of a
+texel they trade albedo against roughness. By default both learn from every
+texel-view and stay apart through their disjoint roughness bounds; with
+``separate_lobes`` (the authors' scheme) texel-views whose half vector is
+close to the normal (``cos theta_h > specular_half_cosine``, 0.86) train the
+specular lobe with the single-scattering lobe held, and the others the
+single-scattering lobe with the specular lobe held. ``eta`` and the normals
+learn from all of them either way.
 """
 
 from __future__ import annotations
