@@ -96,6 +96,10 @@ class StaticConfig:
     min_views : int
         Texels with fewer usable texel-views get confidence 0 and take their
         values from their neighbours.
+    residual_limit : float
+        Texels whose mean chi-square of ``I_sss`` and ``I_s`` exceeds this many
+        times the median texel's get confidence 0 and their neighbours'
+        values (0 turns the test off).
     seed : int
         Seed of the patch order (a resumed run repeats it exactly).
     deterministic : bool
@@ -126,6 +130,7 @@ class StaticConfig:
     photometric_noise: float = 0.01
     min_cosine: float = 0.3
     min_views: int = 2
+    residual_limit: float = 9.0
     seed: int = 0
     deterministic: bool = True
     polarimetric: bool = True
@@ -165,6 +170,7 @@ class StaticConfig:
         _finite(self.final_learning_rate, "final_learning_rate", minimum=1e-6, maximum=1.0)
         _finite(self.specular_half_cosine, "specular_half_cosine", minimum=0.0, maximum=1.0)
         _finite(self.min_cosine, "min_cosine", minimum=0.0, maximum=1.0)
+        _finite(self.residual_limit, "residual_limit", minimum=0.0)
         _finite(self.photometric_noise, "photometric_noise", minimum=1e-6)
 
     def to_json(self) -> dict:

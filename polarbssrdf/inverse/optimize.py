@@ -199,11 +199,14 @@ def solve_subsurface_albedo(stokes, prepared, weight, previous):
     return solved
 
 
-def patch_losses(params, prepared, config, weights, solve_albedo=True):
-    """Every loss term of a patch as Dr.Jit scalars, the total, and the usable-view weights.
+def texel_view_terms(params, prepared, config, solve_albedo=True):
+    """Per texel-view data-term contributions of a patch, summed over bands.
 
     With ``solve_albedo`` the patch's ``rho_sss`` is first re-solved in closed
     form (and stored in ``params``); without, the current maps are used.
+
+    Returns ``(per_view, weight, values)``: ``{term: Float}`` (evaluated), the
+    usable-view weights, and the window values of every map.
     """
     stokes, values, normal, _ = predicted_patch(params, prepared, config)
     weight = usable_views(prepared, normal, config)
@@ -216,7 +219,6 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True):
         solved = solve_subsurface_albedo(stokes, prepared, weight, solved)
         flat_rho[:, prepared.window_index] = solved
     Float = type(weight)
-    count = dr.maximum(dr.detach(dr.sum(weight)), 1.0)
     glossy_I_s = stokes.glossy[1]  # I0 - I90 of the glossy lobes is S1
     per_view = {name: Float(0.0) for name in DATA_TERMS}
     for band, observed in enumerate(prepared.observed):
@@ -229,8 +231,18 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True):
             per_view[name] = per_view[name] + band_terms[name]
     # one kernel for every band and term; reducing each separately would recompute the model
     dr.eval(*per_view.values())
-    terms = {name: dr.sum(values) / (count * len(prepared.observed))
-             for name, values in per_view.items()}
+    return per_view, weight, values
+
+
+def patch_losses(params, prepared, config, weights, solve_albedo=True):
+    """Every loss term of a patch as Dr.Jit scalars, the total, and the usable-view weights.
+
+    See :func:`texel_view_terms` for ``solve_albedo``.
+    """
+    per_view, weight, values = texel_view_terms(params, prepared, config, solve_albedo)
+    count = dr.maximum(dr.detach(dr.sum(weight)), 1.0)
+    terms = {name: dr.sum(term) / (count * len(prepared.observed))
+             for name, term in per_view.items()}
     stencils = prepared.stencils
     terms["H_magnitude"] = displacement_magnitude(values["displacement"], stencils)
     terms["H_laplacian"] = displacement_laplacian(values["displacement"], stencils)

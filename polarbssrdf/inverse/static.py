@@ -5,17 +5,19 @@ maps of ``eta, rho_s, alpha_s, rho_ss, alpha_ss, rho_sss.<band>`` and the
 displacement ``H`` (with the normals it implies), written in the result
 format (:mod:`polarbssrdf.inverse.result`) as ``static/maps_f0000.exr``.
 
-Each epoch visits every patch once in a seeded random order and takes one
-optimizer step on it (:mod:`polarbssrdf.inverse.optimize`). After every
+Each epoch visits every patch in a seeded random order (a texture of one
+patch repeats it ``min_steps_per_epoch`` times) and takes one optimizer step
+on it (:mod:`polarbssrdf.inverse.optimize`). After every
 epoch the maps, the optimizer state and the loss history are checkpointed
 atomically, so a killed run resumes at the last finished epoch and ends
 with the same maps as an uninterrupted one.
 
 Confidence: ``min(1, n / 8)`` for a texel with ``n`` usable texel-views
-(view and light cosines above ``min_cosine`` with the final normals), and
-0 below ``min_views``; confidence-0 texels (and texels off the mesh) take
-the values of their confident neighbours (normalized Gaussian fill), never
-NaN.
+(view and light cosines above ``min_cosine`` with the final normals), 0
+below ``min_views`` and 0 where the fitted model leaves residuals far above
+the typical texel's (:func:`texel_confidence`); confidence-0 texels (and
+texels off the mesh) take the values of their confident neighbours
+(normalized Gaussian fill), never NaN.
 """
 
 from __future__ import annotations
@@ -35,8 +37,6 @@ from polarbssrdf.inverse.optimize import (
     MapParameters,
     active_weights,
     optimizer_step,
-    predicted_patch,
-    usable_views,
 )
 from polarbssrdf.inverse.patches import PatchCache, patch_order, texture_patches
 
@@ -171,18 +171,45 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
     return history, cache
 
 
-def usable_view_counts(params, cache, patches, config):
-    """(T, T) number of usable texel-views per texel with the current normals."""
+def texel_statistics(params, cache, patches, config):
+    """Per texel: usable texel-views and their mean chi-square of ``I_sss`` and ``I_s``.
+
+    Both (T, T) float64; the chi-square is per texel-view and band, NaN where unseen.
+    """
+    from polarbssrdf.inverse.optimize import texel_view_terms
+
     T = params.resolution
     counts = np.zeros(T * T, np.float64)
+    chi_square = np.zeros(T * T, np.float64)
     for patch in patches:
         prepared = cache.get(patch)
         if len(prepared) == 0:
             continue
-        _, _, normal, _ = predicted_patch(params, prepared, config)
-        weight = np.array(usable_views(prepared, normal, config))
-        np.add.at(counts, prepared.window_index[prepared.texel_numpy], weight)
-    return counts.reshape(T, T)
+        per_view, weight, _ = texel_view_terms(params, prepared, config, solve_albedo=False)
+        texel = prepared.window_index[prepared.texel_numpy]
+        np.add.at(counts, texel, np.array(weight))
+        residual = (np.array(per_view["sss"]) + np.array(per_view["s"])) / len(prepared.observed)
+        np.add.at(chi_square, texel, residual)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(counts > 0, chi_square / counts, np.nan)
+    return counts.reshape(T, T), mean.reshape(T, T)
+
+
+def texel_confidence(counts, chi_square, valid, config):
+    """``min(1, n / 8)``; 0 below ``min_views``, off the mesh, and where the model does not fit.
+
+    A texel whose texel-views' mean chi-square exceeds ``residual_limit`` times
+    the median over texels is light the per-texel model cannot explain (glossy
+    interreflection in concave regions, a shadow edge, a wrong geometry):
+    its values are replaced by its neighbours'.
+    """
+    confidence = np.where(counts >= config.min_views,
+                          np.minimum(1.0, counts / FULL_CONFIDENCE_VIEWS), 0.0)
+    seen = (counts > 0) & np.isfinite(chi_square)
+    if config.residual_limit > 0 and seen.any():
+        limit = config.residual_limit * max(float(np.median(chi_square[seen])), 1e-12)
+        confidence = np.where(seen & (chi_square > limit), 0.0, confidence)
+    return np.where(valid, confidence, 0.0)
 
 
 def fill_from_confident(values, confident, sigma=2.0):
@@ -223,10 +250,8 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
     history, cache = optimize_maps(store, atlas, config, params, checkpoint, progress, weights,
                                    description)
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
-    counts = usable_view_counts(params, cache, patches, config)
-    confidence = np.where(counts >= config.min_views,
-                          np.minimum(1.0, counts / FULL_CONFIDENCE_VIEWS), 0.0)
-    confidence = np.where(atlas.valid, confidence, 0.0)
+    counts, chi_square = texel_statistics(params, cache, patches, config)
+    confidence = texel_confidence(counts, chi_square, atlas.valid, config)
     return StageResult(final_maps(params, atlas, confidence, store.bands), history)
 
 

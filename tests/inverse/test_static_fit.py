@@ -164,3 +164,17 @@ def test_eta_from_the_dop_alone_is_unbiased_across_normal_azimuths():
     bin_means = [error[bins == b].mean() for b in np.unique(bins) if (bins == b).sum() > 10]
     assert abs(error.mean()) < 0.005
     assert max(abs(m) for m in bin_means) < 0.01
+
+
+def test_confidence_drops_texels_the_model_cannot_explain():
+    from polarbssrdf.inverse.config import static_config
+    from polarbssrdf.inverse.static import texel_confidence
+
+    counts = np.array([[8.0, 8.0, 4.0], [1.0, 0.0, 16.0]])
+    chi_square = np.array([[1.0, 12.0, 0.8], [1.0, np.nan, 1.2]])
+    valid = np.array([[True, True, True], [True, True, False]])
+    confidence = texel_confidence(counts, chi_square, valid, static_config())
+    # 12 > 9 x median (1.0); one view < min_views; unseen; off the mesh
+    np.testing.assert_allclose(confidence, [[1.0, 0.0, 0.5], [0.0, 0.0, 0.0]])
+    kept = texel_confidence(counts, chi_square, valid, static_config(residual_limit=0))
+    assert kept[0, 1] == 1.0
