@@ -39,24 +39,18 @@ CAPTURES = {
                              "--texture", "256", "--spp", "8", "--raw", "--interreflection"],
 }
 
-RAW_NOISE = {"photometric_noise": 0.03}
-"""The raw face's noise: with the default 1% its data terms end at chi-square ~9 per texel-view,
-with 3% at ~1 (sensor noise and demosaicking; the analyser sphere fits 1%)."""
-
 CASES = {
     # name: (capture, config overrides, held-out cameras)
     "sphere": ("sphere", {}, []),
-    "face": ("face_raw", RAW_NOISE, ["cam04"]),
-    "face_default_noise": ("face_raw", {}, ["cam04"]),
-    "face_without_polarimetric_losses": ("face_raw", {**RAW_NOISE, "polarimetric": False},
-                                         ["cam04"]),
-    "face_coaxial_light": ("face_raw", {**RAW_NOISE, "coaxial": True}, ["cam04"]),
-    "face_interreflection": ("face_interreflection", RAW_NOISE, ["cam04"]),
+    "face": ("face_raw", {}, ["cam04"]),
+    "face_fixed_noise": ("face_raw", {"estimate_noise": False}, ["cam04"]),
+    "face_without_polarimetric_losses": ("face_raw", {"polarimetric": False}, ["cam04"]),
+    "face_coaxial_light": ("face_raw", {"coaxial": True}, ["cam04"]),
+    "face_interreflection": ("face_interreflection", {}, ["cam04"]),
 }
 
 TARGETS = {"sphere": {"eta": 0.02, "alpha_s": 0.03, "rho_sss": 0.03, "normal_deg": 1.0},
-           "face": {"eta": 0.03, "alpha_s": 0.05, "normal_deg": 2.0},
-           "face_default_noise": {"eta": 0.03, "alpha_s": 0.05, "normal_deg": 2.0}}
+           "face": {"eta": 0.03, "alpha_s": 0.05, "normal_deg": 2.0}}
 
 
 def polarbssrdf(*args):

@@ -90,6 +90,10 @@ class StaticConfig:
         ``I_sss``: data residuals are divided by it, so a data term is a
         mean chi-square per texel-view and the paper's regularizer weights
         act in parameter units against it.
+    estimate_noise : bool
+        After each epoch, raise the noise unit to the RMS ``I_sss`` residual
+        the fit leaves (never below ``photometric_noise``), so data and
+        regularizers keep their balance on noisier captures.
     min_cosine : float
         Texel-views used in the losses need ``cos`` of the view and of the
         light above this.
@@ -128,6 +132,7 @@ class StaticConfig:
     specular_half_cosine: float = 0.86
     separate_lobes: bool = False
     photometric_noise: float = 0.01
+    estimate_noise: bool = True
     min_cosine: float = 0.3
     min_views: int = 2
     residual_limit: float = 9.0

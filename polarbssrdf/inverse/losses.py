@@ -80,7 +80,7 @@ def data_loss_terms(predicted, observed, glossy_I_s, weight, mean_sss, noise):
         Per texel-view weight (visibility and selection; 0 drops a view).
     mean_sss : float or Float
         The patch's mean observed ``I_sss`` (image scale).
-    noise : float
+    noise : float or Float
         ``photometric_noise``: the residual unit is ``sigma = noise * mean_sss``.
     """
     sss_hat, zeta_hat, s_hat = separations(*predicted)

@@ -226,7 +226,8 @@ def texel_view_terms(params, prepared, config, solve_albedo=True):
         predicted = stokes.analyser_images(rho)
         band_terms = data_loss_terms(predicted, observed, glossy_I_s, weight,
                                      dr.opaque(Float, prepared.image_scale),
-                                     config.photometric_noise)
+                                     # opaque: the noise changes between epochs
+                                     dr.opaque(Float, config.photometric_noise))
         for name in DATA_TERMS:
             per_view[name] = per_view[name] + band_terms[name]
     # one kernel for every band and term; reducing each separately would recompute the model

@@ -120,6 +120,24 @@ def _epoch_summary(records):
     return summary
 
 
+def epoch_noise(config, history):
+    """The noise unit of the next epoch: the config's, or (``estimate_noise``) the RMS
+    ``I_sss`` residual of the last epoch relative to the mean ``I_sss``, never below the
+    config's value.
+
+    The last epoch's ``L_sss`` is a chi-square in units of its own noise, so its
+    square root rescales that noise to the residual the fit actually leaves.
+    """
+    if not config.estimate_noise or not history:
+        return config.photometric_noise
+    last = history[-1]
+    previous = last.get("photometric_noise", config.photometric_noise)
+    chi_square = last.get("sss", float("nan"))
+    if not np.isfinite(chi_square):
+        return previous
+    return float(max(config.photometric_noise, previous * np.sqrt(max(chi_square, 0.0))))
+
+
 @contextlib.contextmanager
 def kernel_threads(count):
     """Run Dr.Jit's LLVM kernels on ``count`` threads inside the block (``None``: unchanged)."""
@@ -158,11 +176,14 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
         for epoch in range(first, config.iterations):
             params.scale_learning_rates(
                 config.final_learning_rate ** (epoch / max(config.iterations - 1, 1)))
-            records = [optimizer_step(params, cache.get(patch), config, weights)
+            epoch_config = dataclasses.replace(config, photometric_noise=epoch_noise(config,
+                                                                                     history))
+            records = [optimizer_step(params, cache.get(patch), epoch_config, weights)
                        for patch in patch_order(patches, epoch, config.seed,
                                                 config.min_steps_per_epoch)]
             summary = _epoch_summary(records)
             summary["epoch"] = epoch + 1
+            summary["photometric_noise"] = epoch_config.photometric_noise
             history.append(summary)
             if checkpoint is not None:
                 save_checkpoint(checkpoint, params, epoch + 1, history, fingerprint)
