@@ -178,3 +178,17 @@ def test_confidence_drops_texels_the_model_cannot_explain():
     np.testing.assert_allclose(confidence, [[1.0, 0.0, 0.5], [0.0, 0.0, 0.0]])
     kept = texel_confidence(counts, chi_square, valid, static_config(residual_limit=0))
     assert kept[0, 1] == 1.0
+
+
+def test_the_noise_unit_follows_the_residual_but_not_below_the_config():
+    from polarbssrdf.inverse.config import static_config
+    from polarbssrdf.inverse.static import epoch_noise
+
+    config = static_config(photometric_noise=0.01)
+    assert epoch_noise(config, []) == 0.01
+    # chi-square 9 at 1% means a 3% residual
+    assert epoch_noise(config, [{"sss": 9.0, "photometric_noise": 0.01}]) == pytest.approx(0.03)
+    assert epoch_noise(config, [{"sss": 0.25, "photometric_noise": 0.01}]) == 0.01
+    assert epoch_noise(config, [{"sss": 4.0, "photometric_noise": 0.03}]) == pytest.approx(0.06)
+    assert epoch_noise(static_config(estimate_noise=False),
+                       [{"sss": 9.0, "photometric_noise": 0.01}]) == 0.01
