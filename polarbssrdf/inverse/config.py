@@ -62,11 +62,11 @@ class StaticConfig:
     weights, bounds, initial, learning_rates : dict
         See :data:`STATIC_WEIGHTS`, :data:`BOUNDS`, :data:`INITIAL`, :data:`LEARNING_RATES`.
     regularization_scale : float
-        Factor on every regularizer weight (eq. 32-35). The paper's weights
-        balance regularizers against plain sums of squared image residuals;
-        against this stage's chi-square means (see :mod:`.losses`) they
-        regularize about ten times less than measured best, so the default
-        scales them all by one factor and keeps the paper's ratios.
+        One factor on every regularizer weight (eq. 32-35), keeping the
+        paper's ratios. The default 1 keeps the paper's weights: 10 helped a
+        raw face's eta (MAE 0.0184 -> 0.0166) but hurt a coarse sphere's
+        (0.0083 -> 0.0126) and its normals, because eq. 35's window is fixed
+        in texels (bench/RESULTS.md).
     gradient_clip : float
         Maximum global gradient norm (the authors' 2.0).
     final_learning_rate : float
