@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -48,9 +49,12 @@ class TexelAtlas:
     def resolution(self):
         return self.valid.shape[0]
 
-    @property
+    @functools.cached_property
     def texel_size_mm(self):
-        """(T, T, 2) extent of each texel along ``u`` and ``v``, mm (0 where invalid)."""
+        """(T, T, 2) extent of each texel along ``u`` and ``v``, mm (0 where invalid).
+
+        Computed once per atlas (the blur's geometry cache recognises the array).
+        """
         sizes = np.stack([np.linalg.norm(self.dp_du, axis=-1),
                           np.linalg.norm(self.dp_dv, axis=-1)], axis=-1) / self.resolution
         return np.where(self.valid[..., None], sizes, 0.0)

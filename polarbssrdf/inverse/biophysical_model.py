@@ -184,6 +184,16 @@ class BiophysicalModel:
         exitance = layered_exitance(self.irradiance, totals, self.kernels[band], self.atlas, tolerance=tolerance)
         return exitance.array * self.inverse_exit_fraction
 
+    def local_albedo(self, params, band):
+        """Lobe albedo of ``band`` without the blur (flat Dr.Jit Float): eq. 47 / c(eta).
+
+        ``R_bar = R_of + T_of R_in T_ob / (1 - R_in R_ob)`` per texel: what
+        :meth:`render` gives for maps that are constant over the blur's reach.
+        The fit's Gauss-Newton steps use its Jacobian (the blur mixes texels
+        but does not change this per-texel sensitivity for smooth maps)."""
+        R_of, T_of, R_ob, T_ob, R_in = self.layer_totals(band, params)
+        return (R_of + T_of * R_in * T_ob / (1.0 - R_in * R_ob)) * self.inverse_exit_fraction
+
     kernels: list = None
     """Per band, the normalized SoG kernels of the layer profiles (set by the fit)."""
 

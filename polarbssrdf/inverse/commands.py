@@ -18,10 +18,10 @@ from pathlib import Path
 
 from polarbssrdf.errors import CommandError
 
-STAGES = ("static",)
-"""The stages ``--stages`` accepts, in the order they run (dynamic and bio come later)."""
+STAGES = ("static", "bio")
+"""The stages ``--stages`` accepts, in the order they run (the dynamic stage comes later)."""
 
-DEFAULT_STAGES = ("static",)
+DEFAULT_STAGES = ("static", "bio")
 DEFAULT_VARIANT = "llvm_ad_mono_polarized"
 DEFAULT_TEXTURE = 512
 """Texture size without ``--texture`` when the capture has no ground truth."""
@@ -320,8 +320,15 @@ def run_reconstruct(args) -> int:
                                f"({'; '.join(differences)}); rerun with its settings to continue "
                                "it, or pass --overwrite instead of --resume to start over")
     select_variant(args.variant)
-    prepare_result_directory(outdir, capture.directory, texture, settings, resume=args.resume,
-                             overwrite=args.overwrite)
+    continuing = stages[0] != STAGES[0] and not args.overwrite
+    if continuing:
+        # later stages on an earlier run: they read its maps and add their own
+        from polarbssrdf.inverse.result import continue_result_directory
+
+        continue_result_directory(outdir, capture.directory, texture)
+    else:
+        prepare_result_directory(outdir, capture.directory, texture, settings,
+                                 resume=args.resume, overwrite=args.overwrite)
 
     progress = not args.quiet
     lines = []
@@ -339,6 +346,15 @@ def run_reconstruct(args) -> int:
                          f"epochs, {'?' if views is None else f'{views:,}'} texel-views"
                          + (f", final loss {final:.4g}" if final is not None else "")
                          + f", {time.perf_counter() - stage_start:.1f} s)")
+        elif stage == "bio":
+            from polarbssrdf.inverse.bio_stage import run_bio_stage
+
+            stage_start = time.perf_counter()
+            summary = run_bio_stage(capture, outdir, texture, config.bio,
+                                    resume=args.resume or continuing, progress=progress)
+            lines.append(f"  bio: {len(summary['frames'])} frame(s) from the "
+                         f"{summary['source_stage']} maps -> {outdir / 'bio'} (maps, previews, "
+                         f"summary.json; {time.perf_counter() - stage_start:.1f} s)")
     seconds = time.perf_counter() - started
     held = f"; held out {', '.join(holdout)}" if holdout else ""
     print(f"polarbssrdf reconstruct: {capture.directory} -> {outdir} ({texture} x {texture} "

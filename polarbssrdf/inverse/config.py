@@ -41,6 +41,9 @@ truth of 0.97 and ``alpha_s`` off by 0.025, against 0.973 and 0.020 with these
 rates); ``rho_s`` starts far from typical skin (0.5 vs about 0.8) and moves fast.
 """
 
+OPTIMIZERS = ("rmsprop", "adam")
+"""The ``drjit.opt`` optimizers the stages can use."""
+
 OPTIMIZED = tuple(INITIAL)
 """The maps the gradient steps update (``rho_sss`` per band is solved in closed form)."""
 
@@ -67,6 +70,15 @@ class StaticConfig:
         raw face's eta (MAE 0.0184 -> 0.0166) but hurt a coarse sphere's
         (0.0083 -> 0.0126) and its normals, because eq. 35's window is fixed
         in texels (bench/RESULTS.md).
+    glossy_amplitudes : bool
+        Optimize ``rho_s`` and ``rho_ss`` through their amplitudes at normal
+        incidence, ``rho F0(eta) / F0(initial eta)`` (see
+        :mod:`polarbssrdf.inverse.optimize`), which takes the ``eta``-albedo
+        valley out of the optimizer's way; ``False`` steps the albedos
+        themselves.
+    optimizer : str
+        ``"rmsprop"`` (``drjit.opt.RMSProp``, the authors' choice) or
+        ``"adam"`` (``drjit.opt.Adam``, beta_1 0.9, beta_2 0.999).
     gradient_clip : float
         Maximum global gradient norm (the authors' 2.0).
     final_learning_rate : float
@@ -115,6 +127,11 @@ class StaticConfig:
         epochs. ``False`` uses every core.
     polarimetric : bool
         Use ``L_psi`` and ``L_phi``; ``False`` is the ablation without them.
+    bio : dict
+        Settings of the biophysical stage: any key of
+        :class:`polarbssrdf.inverse.biophysical.BiophysicalConfig`, and
+        ``free_melanin`` (fit ``C_m`` and ``beta_m`` in every frame instead of
+        holding the first frame's).
     coaxial : bool
         Ablation: take the light direction equal to the view direction.
     """
@@ -127,6 +144,8 @@ class StaticConfig:
     initial: dict = dataclasses.field(default_factory=lambda: dict(INITIAL))
     learning_rates: dict = dataclasses.field(default_factory=lambda: dict(LEARNING_RATES))
     regularization_scale: float = 1.0
+    glossy_amplitudes: bool = False
+    optimizer: str = "rmsprop"
     gradient_clip: float = 2.0
     final_learning_rate: float = 0.1
     specular_half_cosine: float = 0.86
@@ -140,6 +159,7 @@ class StaticConfig:
     deterministic: bool = True
     polarimetric: bool = True
     coaxial: bool = False
+    bio: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         _positive_int(self.iterations, "iterations", minimum=0)
@@ -170,6 +190,9 @@ class StaticConfig:
             if not low <= value <= high:
                 raise ValueError(f"config: initial.{name} = {value} is outside bounds.{name} "
                                  f"[{low}, {high}]")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"config: optimizer must be one of {list(OPTIMIZERS)}, "
+                             f"got {self.optimizer!r}")
         _finite(self.gradient_clip, "gradient_clip", minimum=0.0)
         _finite(self.regularization_scale, "regularization_scale", minimum=0.0)
         _finite(self.final_learning_rate, "final_learning_rate", minimum=1e-6, maximum=1.0)
@@ -177,6 +200,14 @@ class StaticConfig:
         _finite(self.min_cosine, "min_cosine", minimum=0.0, maximum=1.0)
         _finite(self.residual_limit, "residual_limit", minimum=0.0)
         _finite(self.photometric_noise, "photometric_noise", minimum=1e-6)
+        if not isinstance(self.bio, dict):
+            raise ValueError(f"config: bio must be an object, got {self.bio!r}")
+        from polarbssrdf.inverse.bio_stage import bio_config
+
+        try:
+            bio_config(self.bio)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"config: bio: {error}") from None
 
     def to_json(self) -> dict:
         data = dataclasses.asdict(self)
@@ -215,7 +246,7 @@ def static_config(overrides=None, **changes) -> StaticConfig:
             raise ValueError(f"config: unknown key(s) {unknown}; known: "
                              f"{sorted(f.name for f in dataclasses.fields(StaticConfig))}")
         for key, value in source.items():
-            if key in ("weights", "bounds", "initial", "learning_rates"):
+            if key in ("weights", "bounds", "initial", "learning_rates", "bio"):
                 if not isinstance(value, dict):
                     raise ValueError(f"config: {key} must be an object, got {value!r}")
                 merged = dict(data.get(key) or getattr(StaticConfig(), key))

@@ -4,6 +4,15 @@ The maps being optimized are full-texture Dr.Jit tensors owned by a
 ``drjit.opt.RMSProp`` optimizer with ``mask_updates=True``: a patch step
 gives gradients only to the patch's window, and texels elsewhere keep their
 values *and* their RMSProp state, as if the patch were optimized alone.
+The glossy albedos are optimized as lobe amplitudes at normal incidence:
+the gradient steps move ``q = rho F0(eta) / F0(eta_ref)`` (``F0`` the
+normal-incidence Fresnel reflectance, ``eta_ref`` the start value of
+``eta``), and ``rho = q F0(eta_ref) / F0(eta)`` enters the model. A glossy
+lobe's brightness is ``rho F(eta)``, so with ``rho`` itself as the variable
+``eta`` and ``rho`` share a long shallow valley along which a diagonal
+optimizer creeps: on a noise-free face the final ``eta`` moved by -0.016
+when only the start of ``rho_s`` changed (0.5 -> 0.8). In ``q`` the
+valley is along an axis, and the optimizer's per-parameter scaling handles it.
 ``rho_sss`` per band is linear given the rest: before each gradient step it
 is solved per texel and band by least squares on ``L_sss``
 (:func:`solve_subsurface_albedo`), then held. The global gradient norm is
@@ -35,6 +44,9 @@ from polarbssrdf.inverse.regularizers import (
     displacement_magnitude,
     neighbourhood_smoothness,
 )
+from polarbssrdf.optics.fresnel import normal_incidence_reflectance
+
+GLOSSY_ALBEDOS = ("rho_s", "rho_ss")
 
 REGULARIZER_TERMS = ("H_magnitude", "H_laplacian", "alpha_s_smoothness", "alpha_ss_smoothness",
                      "eta_smoothness")
@@ -54,16 +66,30 @@ class MapParameters:
         Per map.
     optimized : sequence of str
         The maps that receive gradient steps (the others are held).
+    optimizer : {"rmsprop", "adam"}
+        ``drjit.opt.RMSProp`` or ``drjit.opt.Adam``, both with ``mask_updates``.
+    reference_eta : float or None
+        ``eta_ref`` of the amplitude variables (module docstring); None
+        optimizes ``rho_s`` and ``rho_ss`` themselves.
     """
 
-    def __init__(self, maps, rho_sss, learning_rates, optimized=OPTIMIZED):
+    def __init__(self, maps, rho_sss, learning_rates, optimized=OPTIMIZED, optimizer="rmsprop",
+                 reference_eta=None):
         _, _, _, TensorXf = jit_types()
         self.TensorXf = TensorXf
+        self.reference_eta = None if reference_eta is None else float(reference_eta)
+        maps = self.variables_of(maps)
         self.resolution = int(np.asarray(maps["eta"]).shape[0])
         self.optimized = tuple(optimized)
         self.fixed = {name: TensorXf(np.ascontiguousarray(maps[name], np.float32))
                       for name in OPTIMIZED if name not in self.optimized}
-        self.optimizer = dr.opt.RMSProp(lr=1e-3, mask_updates=True)
+        self.kind = optimizer
+        if optimizer == "adam":
+            self.optimizer = dr.opt.Adam(lr=1e-3, mask_updates=True)
+        elif optimizer == "rmsprop":
+            self.optimizer = dr.opt.RMSProp(lr=1e-3, mask_updates=True)
+        else:
+            raise ValueError(f"unknown optimizer {optimizer!r}; use 'rmsprop' or 'adam'")
         self.learning_rates = {name: float(learning_rates[name]) for name in self.optimized}
         for name in self.optimized:
             self.optimizer[name] = TensorXf(np.ascontiguousarray(maps[name], np.float32))
@@ -76,32 +102,72 @@ class MapParameters:
                                           for name, rate in self.learning_rates.items()})
 
     def tensor(self, name):
+        """The optimized variable of a map (a glossy albedo's amplitude variable, see above)."""
         return self.optimizer[name] if name in self.optimized else self.fixed[name]
 
-    def to_numpy(self):
-        """``name -> (T, T) float32`` of every map (detached)."""
+    def amplitude_scale(self, eta):
+        """``F0(eta_ref) / F0(eta)``: glossy albedo per unit amplitude variable (1 without)."""
+        if self.reference_eta is None:
+            return 1.0
+        return normal_incidence_reflectance(self.reference_eta) / normal_incidence_reflectance(eta)
+
+    def variables_of(self, maps):
+        """The optimizer's variables from maps of physical values (NumPy)."""
+        maps = dict(maps)
+        if self.reference_eta is not None:
+            scale = self.amplitude_scale(np.asarray(maps["eta"], np.float64))
+            for name in GLOSSY_ALBEDOS:
+                maps[name] = (np.asarray(maps[name], np.float64) / scale).astype(np.float32)
+        return maps
+
+    def variables_numpy(self):
+        """``name -> (T, T) float32`` of every optimizer variable (detached)."""
         return {name: np.array(self.tensor(name), dtype=np.float32) for name in OPTIMIZED}
 
+    def to_numpy(self):
+        """``name -> (T, T) float32`` of every map in physical values (detached)."""
+        maps = self.variables_numpy()
+        if self.reference_eta is not None:
+            scale = self.amplitude_scale(maps["eta"].astype(np.float64))
+            for name in GLOSSY_ALBEDOS:
+                maps[name] = (maps[name] * scale).astype(np.float32)
+        return maps
+
     def state(self):
-        """What a checkpoint stores: values and RMSProp second moments, as NumPy."""
-        state = {f"map.{name}": array for name, array in self.to_numpy().items()}
+        """What a checkpoint stores: variables and the optimizer's moments, as NumPy."""
+        state = {f"map.{name}": array for name, array in self.variables_numpy().items()}
         for name in self.optimized:
-            second_moment = self.optimizer.state[name][3]
-            state[f"rmsprop.{name}"] = np.array(second_moment, dtype=np.float32)
+            extra = self.optimizer.state[name][3]
+            if self.kind == "adam":
+                # drjit.opt.Adam keeps (steps, first moment, second moment, AMSGrad max)
+                state[f"adam_steps.{name}"] = np.array([int(np.array(extra[0]).ravel()[0])],
+                                                       np.int64)
+                state[f"adam_m.{name}"] = np.array(extra[1], dtype=np.float32)
+                state[f"adam_v.{name}"] = np.array(extra[2], dtype=np.float32)
+            else:
+                state[f"rmsprop.{name}"] = np.array(extra, dtype=np.float32)
         state["rho_sss"] = self.rho_sss.copy()
         return state
 
     def restore(self, state):
-        """Inverse of :meth:`state` (exactly: values, second moments and ``rho_sss``)."""
+        """Inverse of :meth:`state` (exactly: values, moments and ``rho_sss``)."""
         for name in OPTIMIZED:
             tensor = self.TensorXf(np.ascontiguousarray(state[f"map.{name}"], np.float32))
             if name in self.optimized:
                 self.optimizer[name] = tensor
-                value, promoted, lr, _ = self.optimizer.state[name]
-                moment = type(value.array)(np.ascontiguousarray(
-                    state[f"rmsprop.{name}"], np.float32).ravel())
-                # drjit.opt keeps (value, promoted, lr, second moment) per parameter
-                self.optimizer.state[name] = (value, promoted, lr, moment)
+                value, promoted, lr, extra = self.optimizer.state[name]
+                Float = type(value.array)
+
+                def moment(key):
+                    return Float(np.ascontiguousarray(state[key], np.float32).ravel())
+
+                if self.kind == "adam":
+                    steps = type(extra[0])(int(state[f"adam_steps.{name}"][0]))
+                    extra = (steps, moment(f"adam_m.{name}"), moment(f"adam_v.{name}"), None)
+                else:
+                    extra = moment(f"rmsprop.{name}")
+                # drjit.opt keeps (value, promoted, lr, optimizer state) per parameter
+                self.optimizer.state[name] = (value, promoted, lr, extra)
             else:
                 self.fixed[name] = tensor
         self.rho_sss = np.array(state["rho_sss"], dtype=np.float32)
@@ -141,6 +207,9 @@ def predicted_patch(params, prepared, config):
     normal = window_normals(values["displacement"], prepared)
     per_view = {name: _per_view(values[name], prepared) for name in OPTIMIZED
                 if name != "displacement"}
+    scale = params.amplitude_scale(per_view["eta"])
+    for name in GLOSSY_ALBEDOS:
+        per_view[name] = per_view[name] * scale
     held = dict(per_view)
     specular_views = None
     if config.separate_lobes:

@@ -14,9 +14,9 @@ MAP_RANGES = {"eta": (1.3, 1.6), "alpha_s": (0.1, 0.7), "alpha_ss": (0.7, 1.0),
 """Fixed colour ranges where the parameter has natural bounds; others use the 1st-99th percentile."""
 
 
-def _unit(name):
+def _unit(name, units=None):
     parameter = name.partition(".")[0]
-    unit = RESULT_UNITS.get(parameter, "1")
+    unit = (units or RESULT_UNITS).get(parameter, "1")
     return "dimensionless" if unit == "1" else unit
 
 
@@ -33,8 +33,9 @@ def _range(name, values):
     return float(low), float(max(high, low + 1e-6))
 
 
-def map_preview_png(name, values):
-    """PNG bytes of one map with a colour bar labelled with its unit."""
+def map_preview_png(name, values, units=None):
+    """PNG bytes of one map with a colour bar labelled with its unit (``units``: name -> unit,
+    default the result maps' units)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -52,7 +53,7 @@ def map_preview_png(name, values):
     axes.set_xticks([])
     axes.set_yticks([])
     bar = figure.colorbar(image, ax=axes, fraction=0.046, pad=0.04)
-    bar.set_label(_unit(name), fontsize=8)
+    bar.set_label(_unit(name, units), fontsize=8)
     bar.ax.tick_params(labelsize=7)
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", bbox_inches="tight")
@@ -71,7 +72,7 @@ def normal_map_png(maps):
     return buffer.getvalue()
 
 
-def write_map_previews(maps, directory, suffix):
+def write_map_previews(maps, directory, suffix, units=None):
     """``<directory>/<map>_<suffix>.png`` for every map (atomic writes); returns the paths."""
     from polarbssrdf.io.atomic import atomic_write_bytes
 
@@ -82,7 +83,7 @@ def write_map_previews(maps, directory, suffix):
         if name.startswith("normal."):
             continue
         path = directory / f"{name}_{suffix}.png"
-        atomic_write_bytes(path, map_preview_png(name, values), overwrite=True)
+        atomic_write_bytes(path, map_preview_png(name, values, units), overwrite=True)
         paths.append(path)
     if all(f"normal.{axis}" in maps for axis in "xyz"):
         path = directory / f"normal_{suffix}.png"

@@ -131,6 +131,25 @@ def read_stage_maps(outdir, stage, frame):
     return channels
 
 
+def continue_result_directory(outdir, capture_directory, texture_size):
+    """The :class:`ResultManifest` of an earlier run in ``outdir`` that later stages extend.
+
+    The capture and texture size must be the run's (a later stage reads its maps).
+    """
+    outdir = Path(outdir)
+    if not (outdir / RESULT_FILE).is_file():
+        raise FileNotFoundError(f"{outdir} holds no {RESULT_FILE}: the stages asked for read "
+                                "an earlier stage's maps; include it in --stages (e.g. "
+                                "'--stages static,bio')")
+    manifest = read_result(outdir)
+    differences = _settings_differences(manifest, str(Path(capture_directory).resolve()),
+                                        texture_size, manifest.settings)
+    if differences:
+        raise ValueError(f"{outdir} holds a run of another capture or texture size "
+                         f"({'; '.join(differences)}): later stages must read its own maps")
+    return manifest
+
+
 def prepare_result_directory(outdir, capture_directory, texture_size, settings, *, resume=False,
                              overwrite=False):
     """Create ``outdir`` for a run, or check that it holds the same run for ``resume``.
@@ -183,7 +202,7 @@ def _settings_differences(manifest, capture, texture_size, settings):
     return differences
 
 
-RUN_ENTRIES = (RESULT_FILE, "static", "metrics.json")
+RUN_ENTRIES = (RESULT_FILE, "static", "bio", "metrics.json")
 """What a run writes in OUTDIR; ``--overwrite`` removes only these (the observation cache stays:
 its fingerprint decides whether it is reused)."""
 

@@ -72,6 +72,7 @@ def run_fingerprint(config, texture_size, bands, texel_views):
 
     settings = dict(config.to_json())
     settings.pop("iterations")  # a run may be extended by more epochs
+    settings.pop("bio", None)  # the biophysical stage does not change the fit
     text = json.dumps({"config": settings, "texture": int(texture_size), "bands": list(bands),
                        "texel_views": int(texel_views)}, sort_keys=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
@@ -267,7 +268,8 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
             if f"rho_sss.{name}" in start:
                 rho_sss[band] = np.asarray(start[f"rho_sss.{name}"], np.float32)
     if params is None:
-        params = MapParameters(maps, rho_sss, config.learning_rates, optimized)
+        params = MapParameters(maps, rho_sss, config.learning_rates, optimized, config.optimizer,
+                               config.initial["eta"] if config.glossy_amplitudes else None)
     history, cache = optimize_maps(store, atlas, config, params, checkpoint, progress, weights,
                                    description)
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)

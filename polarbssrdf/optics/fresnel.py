@@ -56,6 +56,17 @@ def fresnel_reflectance(cos_theta_i, eta):
     return R_perp, R_par
 
 
+def normal_incidence_reflectance(eta):
+    """``F0 = ((eta - 1) / (eta + 1))^2``: eq. 2 at ``theta_i = 0`` (both polarizations), unitless.
+
+    Parameters
+    ----------
+    eta : float or array
+        Relative refractive index ``eta2 / eta1`` (> 0).
+    """
+    return xp.square((eta - 1.0) / (eta + 1.0))
+
+
 def fresnel_transmittance(cos_theta_i, eta):
     """Fresnel power transmittances ``(T_perp, T_par) = (1 - R_perp, 1 - R_par)``.
 

@@ -11,11 +11,14 @@ conserves energy per texel and does not leak into or out of the empty parts
 of the atlas. Gaussians narrower than half a texel are the identity at this
 resolution.
 
-Each 1-D pass is one fused Dr.Jit kernel (all taps gathered in one loop over
-the texels), on the backend of a Dr.Jit input or on the LLVM backend for
-NumPy input. With an AD-enabled Dr.Jit input the blur is one custom AD
-operation (:class:`_SumOfGaussiansBlur`): the blur is linear in the map, so
-its reverse derivative is the adjoint blur (:func:`_blur_axis_adjoint`, also
+A whole sum of Gaussians is two fused Dr.Jit kernels: the ``u`` passes of
+every Gaussian in one (all taps of all Gaussians gathered in one loop over
+the texels), the ``v`` passes and the weighted sum in the other; on the
+backend of a Dr.Jit input or on the LLVM backend for NumPy input. Each
+Gaussian keeps its own normalization per pass, precomputed once per atlas
+and variance (:class:`BlurGeometry`). With an AD-enabled Dr.Jit input the
+blur is one custom AD operation (:class:`_SumOfGaussiansBlur`): the blur is
+linear in the map, so its reverse derivative is the adjoint blur (three
 fused kernels), not an AD graph of every tap (which is about 100x slower).
 Gaussians narrower than the texels on both axes are merged into one identity
 term.
@@ -25,20 +28,22 @@ from __future__ import annotations
 
 import numpy as np
 
-MAX_TAPS_PER_SIDE = 64
+MAX_TAPS_PER_SIDE = 1024
+"""A safety cap only: +-4 sigma at the smallest texel is always covered below it (a
+2048^2 face's smallest texels are about 0.07 mm, the widest Gaussian of a skin
+profile with a weight above ``negligible_weight`` about 1 mm: 60 taps)."""
 SIGMAS_COVERED = 4.0  # +-4 sigma keeps 99.99% of the mass and 99.9% of the variance
 IDENTITY_SIGMAS = 5.3  # a texel wider than this many sigma: neighbours weigh < 1e-6, the pass is skipped
 
 
-def _backend_types(texture):
-    """(module, TensorXf) to compute in, and whether the input was NumPy."""
+
+def _backend_module(texture):
+    """The Dr.Jit backend module to compute in, and whether the input was NumPy."""
     import drjit as dr
 
     if isinstance(texture, np.ndarray):
-        return dr.llvm, dr.llvm.TensorXf, True
-    import sys
-
-    return sys.modules[type(texture).__module__], type(texture), False
+        return dr.llvm, True
+    return sys_module(texture), False
 
 
 def half_width_texels(variance_mm2, texel_mm, valid_mask, max_taps=MAX_TAPS_PER_SIDE):
@@ -47,126 +52,215 @@ def half_width_texels(variance_mm2, texel_mm, valid_mask, max_taps=MAX_TAPS_PER_
     return int(min(np.ceil(SIGMAS_COVERED * np.sqrt(variance_mm2) / max(smallest, 1e-9)), max_taps))
 
 
-def _weighted_taps(values, texel_mm, valid, variance, half_width, axis, shape, module):
-    """``(sum_o w_o v x, W = sum_o w_o v)`` over the valid taps of one 1-D Gaussian pass.
+class BlurGeometry:
+    """What the passes over one atlas share, on one Dr.Jit backend.
 
-    ``values`` may be None: then only the normalization ``W`` is formed.
+    Texel sizes and the surface mask as flat arrays, and per Gaussian
+    variance its 1-D passes: ``(axis, half width, 1 / W)`` with ``W_i`` the
+    summed weight of the valid taps of texel ``i`` (0 where there are none),
+    computed once. :func:`blur_geometry` keeps the last few.
+    """
+
+    def __init__(self, texel_size_mm, valid_mask, module):
+        self.module = module
+        self.shape = tuple(valid_mask.shape)
+        self.valid_mask = np.asarray(valid_mask, bool)
+        self.texel_size_mm = np.asarray(texel_size_mm)
+        Float = module.Float
+        self.valid = Float(self.valid_mask.astype(np.float32).ravel())
+        self.texel_mm = {1: self.texel_size_mm[..., 0], 0: self.texel_size_mm[..., 1]}
+        self.texel_mm_jit = {axis: Float(np.ascontiguousarray(sizes, np.float32).ravel())
+                             for axis, sizes in self.texel_mm.items()}
+        self._smallest = {axis: (float(sizes[self.valid_mask].min()) if self.valid_mask.any()
+                                 else 1.0) for axis, sizes in self.texel_mm.items()}
+        self._passes = {}
+
+    def passes(self, variance_mm2):
+        """``[(axis, half_width, inverse weight sum)]`` of the non-trivial passes (u, then v)."""
+        key = float(variance_mm2)
+        if key not in self._passes:
+            import drjit as dr
+
+            plan = []
+            for axis in (1, 0):  # along u (columns), then v (rows)
+                half_width = half_width_texels(key, self.texel_mm[axis], self.valid_mask)
+                # the nearest tap weighs < 1e-6 of the centre at every texel: the identity
+                if half_width > 0 and self._smallest[axis] ** 2 < IDENTITY_SIGMAS ** 2 * key:
+                    weight_sum = _tap_sums([None], [key], [half_width], axis, self)[0]
+                    inverse = dr.select(weight_sum > 0, dr.rcp(weight_sum), 0.0)
+                    dr.eval(inverse)
+                    plan.append((axis, half_width, inverse))
+            self._passes[key] = plan
+        return self._passes[key]
+
+    def is_identity(self, variance_mm2):
+        return not self.passes(variance_mm2)
+
+
+_GEOMETRIES = []
+_GEOMETRY_CACHE_SIZE = 4
+
+
+def blur_geometry(texel_size_mm, valid_mask, module):
+    """The :class:`BlurGeometry` of these arrays (the same objects reuse one, LRU of 4)."""
+    for entry in _GEOMETRIES:
+        if (entry.texel_size_mm is texel_size_mm and entry.valid_mask_source is valid_mask
+                and entry.module is module):
+            _GEOMETRIES.remove(entry)
+            _GEOMETRIES.insert(0, entry)
+            return entry
+    entry = BlurGeometry(texel_size_mm, valid_mask, module)
+    # the source objects are kept, so their ids cannot be reused while cached
+    entry.texel_size_mm, entry.valid_mask_source = texel_size_mm, valid_mask
+    _GEOMETRIES.insert(0, entry)
+    del _GEOMETRIES[_GEOMETRY_CACHE_SIZE:]
+    return entry
+
+
+def _neighbours(axis, geometry, offset, sign):
+    """(inside, flat index) of the texel ``sign * offset`` away along ``axis``."""
+    import drjit as dr
+
+    module = geometry.module
+    UInt32, Int32 = module.UInt32, module.Int32
+    rows, cols = geometry.shape
+    index = dr.arange(UInt32, rows * cols)
+    row, col = index // cols, index % cols
+    position = Int32(col if axis == 1 else row)
+    length = cols if axis == 1 else rows
+    target = position + sign * offset
+    inside = (target >= 0) & (target < length)
+    clamped = UInt32(dr.clip(target, 0, length - 1))
+    return inside, (row * cols + clamped if axis == 1 else clamped * cols + col)
+
+
+def _tap_sums(sources, variances, half_widths, axis, geometry, adjoint=False):
+    """Per Gaussian ``j``: ``sum_o g_j(o, t) source_j[i + o]`` along ``axis`` (one kernel's worth).
+
+    Forward (``adjoint=False``): ``t`` is the output texel's size, the
+    sources are valid-masked (a ``None`` source sums the weights of the valid
+    taps: the normalization). Adjoint: ``t`` is the size of the texel the
+    tap comes from (``i - o``), as the transpose of the forward pass needs.
     """
     import drjit as dr
 
-    Float, UInt32, Int32 = module.Float, module.UInt32, module.Int32
-    rows, cols = shape
-    index = dr.arange(UInt32, rows * cols)
-    row, col = index // cols, index % cols
-    position = Int32(col if axis == 1 else row)
-    length = cols if axis == 1 else rows
-    inv_two_variance = dr.opaque(Float, 0.5 / variance)
-    total = dr.zeros(Float, rows * cols)
-    weight_sum = dr.zeros(Float, rows * cols)
-    for offset in range(-half_width, half_width + 1):
-        target = position + offset
-        inside = (target >= 0) & (target < length)
-        clamped = UInt32(dr.clip(target, 0, length - 1))
-        neighbour = row * cols + clamped if axis == 1 else clamped * cols + col
-        distance = offset * texel_mm
-        weight = dr.exp(-distance * distance * inv_two_variance)
-        weight = dr.select(inside, weight * dr.gather(Float, valid, neighbour), 0.0)
-        if values is not None:
-            total += weight * dr.gather(Float, values, neighbour)
-        weight_sum += weight
-    return total, weight_sum
+    Float = geometry.module.Float
+    size = geometry.shape[0] * geometry.shape[1]
+    texel_mm = geometry.texel_mm_jit[axis]
+    totals = [dr.zeros(Float, size) for _ in sources]
+    for offset in range(0, max(half_widths) + 1):
+        for sign in ((1,) if offset == 0 else (1, -1)):
+            inside, neighbour = _neighbours(axis, geometry, offset, -sign if adjoint else sign)
+            distance2 = float(offset * offset) * dr.square(
+                dr.gather(Float, texel_mm, neighbour) if adjoint else texel_mm)
+            for j, (source, variance, half_width) in enumerate(zip(sources, variances,
+                                                                      half_widths)):
+                if offset > half_width:
+                    continue
+                weight = dr.exp(distance2 * dr.opaque(Float, -0.5 / variance))
+                value = dr.gather(Float, geometry.valid if source is None else source, neighbour)
+                totals[j] += dr.select(inside, weight * value, 0.0)
+    return totals
 
 
-def _blur_axis(values, texel_mm, valid, variance, half_width, axis, shape, module):
-    """One normalized 1-D Gaussian pass over flat arrays (a single fused kernel)."""
+def _stage(axis, gaussian_passes):
+    """The pass of each Gaussian along ``axis``: ``(half_width, inverse)`` or None."""
+    out = []
+    for passes in gaussian_passes:
+        found = [(h, inverse) for a, h, inverse in passes if a == axis]
+        out.append(found[0] if found else None)
+    return out
+
+
+def _sum_of_gaussians(values, terms, geometry):
+    """Forward ``sum_j w_j V_j U_j x`` (+ identity term) on a flat array: two fused kernels."""
     import drjit as dr
 
-    total, weight_sum = _weighted_taps(values, texel_mm, valid, variance, half_width, axis,
-                                       shape, module)
-    return dr.select(weight_sum > 0, total / weight_sum, 0.0) * valid
+    valid = geometry.valid
+    masked = values * valid
+    dr.eval(masked)
+    gaussians = [(w, v) for w, v in terms if v is not None]
+    identity = sum(w for w, v in terms if v is None)
+    passes = [geometry.passes(v) for _, v in gaussians]
+    along_u, along_v = _stage(1, passes), _stage(0, passes)
+    # u passes of every Gaussian: one kernel
+    active = [j for j, p in enumerate(along_u) if p is not None]
+    stage_u = [masked] * len(gaussians)
+    if active:
+        sums = _tap_sums([masked] * len(active), [gaussians[j][1] for j in active],
+                         [along_u[j][0] for j in active], 1, geometry)
+        for j, total in zip(active, sums):
+            stage_u[j] = total * along_u[j][1] * valid
+        dr.eval(*[stage_u[j] for j in active])
+    # v passes and the weighted sum: one kernel
+    result = masked * float(identity) if identity else dr.zeros(type(values), len(values))
+    active = [j for j, p in enumerate(along_v) if p is not None]
+    sums = _tap_sums([stage_u[j] for j in active], [gaussians[j][1] for j in active],
+                     [along_v[j][0] for j in active], 0, geometry) if active else []
+    blurred = dict(zip(active, sums))
+    for j, (weight, _) in enumerate(gaussians):
+        term = blurred[j] * along_v[j][1] if j in blurred else stage_u[j]
+        result = result + term * float(weight)
+    result = result * valid
+    dr.eval(result)
+    return result
 
 
-def _weight_sum(texel_mm, valid, variance, half_width, axis, shape, module):
-    """The normalization ``W_i`` of :func:`_blur_axis` (sum of the weights of valid taps)."""
-    return _weighted_taps(None, texel_mm, valid, variance, half_width, axis, shape, module)[1]
+def _sum_of_gaussians_adjoint(grad, terms, geometry):
+    """The transpose of :func:`_sum_of_gaussians` applied to ``grad``: three fused kernels.
 
-
-def _blur_axis_adjoint(grad, texel_mm, valid, variance, half_width, axis, shape, module):
-    """The transpose of :func:`_blur_axis` applied to ``grad`` (flat arrays, one fused kernel).
-
-    Forward: ``y_i = v_i sum_o w_o(t_i) v_(i+o) x_(i+o) / W_i``; so
-    ``xbar_j = v_j sum_o w_o(t_(j-o)) s_(j-o)`` with ``s_i = v_i ybar_i / W_i``."""
+    Forward pass along an axis: ``y_i = v_i sum_o g(o, t_i) v_(i+o) x_(i+o) / W_i``;
+    its transpose: ``xbar_j = v_j sum_o g(o, t_(j-o)) s_(j-o)``, ``s_i = v_i ybar_i / W_i``.
+    """
     import drjit as dr
 
-    Float, UInt32, Int32 = module.Float, module.UInt32, module.Int32
-    rows, cols = shape
-    weight_sum = _weight_sum(texel_mm, valid, variance, half_width, axis, shape, module)
-    scaled = dr.select(weight_sum > 0, grad * valid / weight_sum, 0.0)
-    dr.eval(scaled)
-    index = dr.arange(UInt32, rows * cols)
-    row, col = index // cols, index % cols
-    position = Int32(col if axis == 1 else row)
-    length = cols if axis == 1 else rows
-    inv_two_variance = dr.opaque(Float, 0.5 / variance)
-    total = dr.zeros(Float, rows * cols)
-    for offset in range(-half_width, half_width + 1):
-        source = position - offset
-        inside = (source >= 0) & (source < length)
-        clamped = UInt32(dr.clip(source, 0, length - 1))
-        other = row * cols + clamped if axis == 1 else clamped * cols + col
-        distance = offset * dr.gather(Float, texel_mm, other)
-        weight = dr.exp(-distance * distance * inv_two_variance)
-        total += dr.select(inside, weight * dr.gather(Float, scaled, other), 0.0)
-    return total * valid
-
-
-def _axis_plan(variance_mm2, texel_size_mm, valid_mask):
-    """[(axis, texel sizes along it, half width)] of the non-trivial 1-D passes (u, then v)."""
-    plan = []
-    for axis in (1, 0):  # along u (columns), then v (rows)
-        texel_mm = texel_size_mm[..., 0] if axis == 1 else texel_size_mm[..., 1]
-        half_width = half_width_texels(variance_mm2, texel_mm, valid_mask)
-        smallest = texel_mm[valid_mask].min() if np.any(valid_mask) else 1.0
-        # the nearest tap weighs < 1e-6 of the centre at every texel: the identity
-        if half_width > 0 and smallest ** 2 < IDENTITY_SIGMAS ** 2 * variance_mm2:
-            plan.append((axis, texel_mm, half_width))
-    return plan
+    valid = geometry.valid
+    masked = grad * valid
+    dr.eval(masked)
+    gaussians = [(w, v) for w, v in terms if v is not None]
+    identity = sum(w for w, v in terms if v is None)
+    passes = [geometry.passes(v) for _, v in gaussians]
+    along_u, along_v = _stage(1, passes), _stage(0, passes)
+    # transpose of the v passes
+    scaled = [masked * float(w) * (along_v[j][1] if along_v[j] is not None else 1.0)
+              for j, (w, _) in enumerate(gaussians)]
+    active = [j for j, p in enumerate(along_v) if p is not None]
+    dr.eval(*[scaled[j] for j in active])
+    stage_v = list(scaled)
+    if active:
+        sums = _tap_sums([scaled[j] for j in active], [gaussians[j][1] for j in active],
+                         [along_v[j][0] for j in active], 0, geometry, adjoint=True)
+        for j, total in zip(active, sums):
+            stage_v[j] = total * valid
+    # scale for the transpose of the u passes, in the same kernel
+    for j in range(len(gaussians)):
+        if along_u[j] is not None:
+            stage_v[j] = stage_v[j] * along_u[j][1]
+    dr.eval(*stage_v) if stage_v else None
+    result = masked * float(identity) if identity else dr.zeros(type(grad), len(grad))
+    active = [j for j, p in enumerate(along_u) if p is not None]
+    sums = _tap_sums([stage_v[j] for j in active], [gaussians[j][1] for j in active],
+                     [along_u[j][0] for j in active], 1, geometry, adjoint=True) if active else []
+    blurred = dict(zip(active, sums))
+    for j in range(len(gaussians)):
+        result = result + (blurred[j] if j in blurred else stage_v[j])
+    result = result * valid
+    dr.eval(result)
+    return result
 
 
 def blur_separable(texture, variance_mm2, texel_size_mm, valid_mask):
     """Blur a (T, T) map with one Gaussian of variance ``variance_mm2`` (mm^2), separably."""
-    import drjit as dr
-
-    module, Tensor, from_numpy = _backend_types(texture)
-    shape = valid_mask.shape
+    module, from_numpy = _backend_module(texture)
+    geometry = blur_geometry(texel_size_mm, valid_mask, module)
     values = module.Float(np.ravel(texture).astype(np.float32)) if from_numpy else texture.array
-    valid = module.Float(valid_mask.astype(np.float32).ravel())
-    for axis, texel_mm, half_width in _axis_plan(variance_mm2, texel_size_mm, valid_mask):
-        values = _blur_axis(values, module.Float(texel_mm.astype(np.float32).ravel()), valid,
-                            float(variance_mm2), half_width, axis, shape, module)
-        dr.eval(values)
-    values = values * valid
+    if geometry.is_identity(variance_mm2):
+        values = values * geometry.valid
+    else:
+        values = _sum_of_gaussians(values, [(1.0, float(variance_mm2))], geometry)
     if from_numpy:
-        return np.array(values, dtype=np.float32).reshape(shape)
-    return Tensor(values, shape)
-
-
-def blur_separable_adjoint(grad, variance_mm2, texel_size_mm, valid_mask, module):
-    """The transpose of :func:`blur_separable` applied to a flat Dr.Jit array ``grad``."""
-    import drjit as dr
-
-    shape = valid_mask.shape
-    valid = module.Float(valid_mask.astype(np.float32).ravel())
-    values = grad * valid
-    for axis, texel_mm, half_width in reversed(_axis_plan(variance_mm2, texel_size_mm, valid_mask)):
-        values = _blur_axis_adjoint(values, module.Float(texel_mm.astype(np.float32).ravel()), valid,
-                                    float(variance_mm2), half_width, axis, shape, module)
-        dr.eval(values)
-    return values
-
-
-def _is_identity(variance_mm2, texel_size_mm, valid_mask):
-    return not _axis_plan(variance_mm2, texel_size_mm, valid_mask)
+        return np.array(values, dtype=np.float32).reshape(geometry.shape)
+    return type(texture)(values, geometry.shape)
 
 
 class _SumOfGaussiansBlur:
@@ -183,35 +277,13 @@ def _custom_blur_class():
     class SumOfGaussiansBlur(dr.CustomOp):
         """``sum_j w_j G(v_j) * x`` as one AD node: forward blur, reverse = adjoint blur."""
 
-        def eval(self, values, terms, texel_size_mm, valid_mask, shape, tensor_type):
-            self.terms, self.texel_size_mm, self.valid_mask = terms, texel_size_mm, valid_mask
-            self.shape, self.tensor_type = shape, tensor_type
-            self.module = sys_module(values)
-            texture = tensor_type(values, shape)
-            valid = self.module.Float(valid_mask.astype(np.float32).ravel())
-            result = None
-            for weight, variance in terms:
-                if variance is None:  # merged identity term
-                    term = values * valid * float(weight)
-                else:
-                    term = blur_separable(texture, variance, texel_size_mm, valid_mask).array * float(weight)
-                result = term if result is None else result + term
-            return result
-
-        def _adjoint(self, grad):
-            valid = self.module.Float(self.valid_mask.astype(np.float32).ravel())
-            result = None
-            for weight, variance in self.terms:
-                if variance is None:
-                    term = grad * valid * float(weight)
-                else:
-                    term = blur_separable_adjoint(grad, variance, self.texel_size_mm, self.valid_mask,
-                                                  self.module) * float(weight)
-                result = term if result is None else result + term
-            return result
+        def eval(self, values, terms, geometry):
+            self.terms, self.geometry = terms, geometry
+            return _sum_of_gaussians(values, terms, geometry)
 
         def backward(self):
-            self.set_grad_in("values", self._adjoint(self.grad_out()))
+            self.set_grad_in("values", _sum_of_gaussians_adjoint(self.grad_out(), self.terms,
+                                                                 self.geometry))
 
         def forward(self):
             raise NotImplementedError("the sum-of-Gaussians blur supports reverse-mode AD only")
@@ -263,12 +335,14 @@ def blur_sum_of_gaussians(texture, weights, variances_mm2, texel_size_mm, valid_
     kept = np.abs(weights) >= negligible_weight * np.abs(weights).sum()
     if np.any(kept) and weights[kept].sum() != 0:
         weights = np.where(kept, weights * total / weights[kept].sum(), 0.0)
+    module, from_numpy = _backend_module(texture)
+    geometry = blur_geometry(texel_size_mm, valid_mask, module)
     # Gaussians that are the identity on both axes: one term
     terms, identity = [], 0.0
     for weight, variance in zip(weights, variances):
         if weight == 0:
             continue
-        if _is_identity(variance, texel_size_mm, valid_mask):
+        if geometry.is_identity(variance):
             identity += float(weight)
         else:
             terms.append((float(weight), float(variance)))
@@ -276,19 +350,15 @@ def blur_sum_of_gaussians(texture, weights, variances_mm2, texel_size_mm, valid_
         terms.insert(0, (identity, None))
     if not terms:
         return texture * 0.0
-    if not isinstance(texture, np.ndarray):
-        import drjit as dr
+    shape = geometry.shape
+    if from_numpy:
+        values = module.Float(np.ravel(texture).astype(np.float32))
+        return np.array(_sum_of_gaussians(values, terms, geometry),
+                        dtype=np.float32).reshape(shape)
+    import drjit as dr
 
-        if dr.grad_enabled(texture):
-            values = dr.custom(_custom_blur_class(), texture.array, terms, texel_size_mm,
-                               valid_mask, tuple(valid_mask.shape), type(texture))
-            return type(texture)(values, tuple(valid_mask.shape))
-    result = None
-    for weight, variance in terms:
-        if variance is None:
-            term = texture * (valid_mask.astype(np.float32) * weight if isinstance(texture, np.ndarray)
-                              else type(texture)(valid_mask.astype(np.float32) * weight))
-        else:
-            term = blur_separable(texture, variance, texel_size_mm, valid_mask) * float(weight)
-        result = term if result is None else result + term
-    return result
+    if dr.grad_enabled(texture):
+        values = dr.custom(_custom_blur_class(), texture.array, terms, geometry)
+    else:
+        values = _sum_of_gaussians(texture.array, terms, geometry)
+    return type(texture)(values, shape)

@@ -58,8 +58,9 @@ def config_file(tmp_path_factory):
 
 
 def reconstruct_args(capture_dir, outdir, config_file, *extra):
-    return ("reconstruct", capture_dir, outdir, "--iterations", "2", "--config", config_file,
-            "--quiet", *extra)
+    # the static stage's command line (the biophysical stage's: test_bio_stage.py)
+    return ("reconstruct", capture_dir, outdir, "--stages", "static", "--iterations", "2",
+            "--config", config_file, "--quiet", *extra)
 
 
 @pytest.fixture(scope="module")
@@ -206,7 +207,7 @@ def test_interrupted_run_resumes_to_the_same_maps(run, capture_dir, config_file,
     assert [epoch["epoch"] for epoch in metrics["static"]] == [1, 2]
 
     # --overwrite starts over with new settings
-    status, _, stderr = run_cli("reconstruct", capture_dir, outdir, "--iterations", "1",
+    status, _, stderr = run_cli("reconstruct", capture_dir, outdir, "--stages", "static", "--iterations", "1",
                                 "--config", config_file, "--overwrite", "--quiet")
     assert status == 0, stderr
     data = json.loads((outdir / "result.json").read_text())
@@ -229,8 +230,8 @@ def test_user_errors_are_one_line_with_status_2(case, capture_dir, config_file, 
     capture, extra, config = capture_dir, [], config_file
     expected = []
     if case == "stage":
-        extra = ["--stages", "static,bio"]
-        expected = ["unknown stage 'bio'", "known stages: static"]
+        extra = ["--stages", "static,colour"]
+        expected = ["unknown stage 'colour'", "known stages: static, bio"]
     elif case == "holdout":
         extra = ["--holdout", "cam01,cam99"]
         expected = ["cam99", "cam00, cam01, cam02, cam03"]

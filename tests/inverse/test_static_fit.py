@@ -192,3 +192,58 @@ def test_the_noise_unit_follows_the_residual_but_not_below_the_config():
     assert epoch_noise(config, [{"sss": 4.0, "photometric_noise": 0.03}]) == pytest.approx(0.06)
     assert epoch_noise(static_config(estimate_noise=False),
                        [{"sss": 9.0, "photometric_noise": 0.01}]) == 0.01
+
+
+def test_glossy_amplitude_variables_round_trip_and_decouple_eta():
+    """The optimizer steps rho F0(eta) / F0(eta_ref); the maps it reports are rho itself."""
+    import mitsuba as mi
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    from polarbssrdf.inverse.config import LEARNING_RATES, OPTIMIZED
+    from polarbssrdf.inverse.optimize import MapParameters
+
+    rng = np.random.default_rng(3)
+    maps = {name: rng.uniform(0.2, 0.9, (8, 8)).astype(np.float32) for name in OPTIMIZED}
+    maps["eta"] = rng.uniform(1.3, 1.6, (8, 8)).astype(np.float32)
+    params = MapParameters(maps, np.zeros((1, 8, 8), np.float32), LEARNING_RATES,
+                           reference_eta=1.4)
+    for name, values in params.to_numpy().items():
+        np.testing.assert_allclose(values, maps[name], rtol=2e-6, err_msg=name)
+    variables = params.variables_numpy()
+
+    def f0(eta):
+        return ((eta - 1.0) / (eta + 1.0)) ** 2
+
+    np.testing.assert_allclose(variables["rho_s"], maps["rho_s"] * f0(maps["eta"]) / f0(1.4),
+                               rtol=2e-6)
+    # a brightness rho F0(eta) that stays put when eta moves with the variable held
+    params.optimizer["eta"] = params.TensorXf(np.full((8, 8), 1.55, np.float32))
+    moved = params.to_numpy()
+    np.testing.assert_allclose(moved["rho_s"] * f0(1.55), maps["rho_s"] * f0(maps["eta"]),
+                               rtol=1e-5)
+
+
+def test_an_interrupted_adam_fit_resumes_to_the_same_maps(sphere_problem, tmp_path, monkeypatch):
+    import polarbssrdf.inverse.static as static
+    from polarbssrdf.inverse.config import static_config
+
+    atlas, store, _, _ = sphere_problem
+    config = static_config(iterations=4, optimizer="adam")
+    straight = static.run_polarimetric_fit(store, atlas, config, progress=False)
+    step, calls = static.optimizer_step, []
+
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2 * config.min_steps_per_epoch + 1:
+            raise KeyboardInterrupt
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(static, "optimizer_step", interrupted)
+    checkpoint = tmp_path / "adam.npz"
+    with pytest.raises(KeyboardInterrupt):
+        static.run_polarimetric_fit(store, atlas, config, progress=False, checkpoint=checkpoint)
+    monkeypatch.setattr(static, "optimizer_step", step)
+    resumed = static.run_polarimetric_fit(store, atlas, config, progress=False,
+                                          checkpoint=checkpoint)
+    for name, values in straight.maps.items():
+        np.testing.assert_allclose(resumed.maps[name], values, atol=1e-5, err_msg=name)

@@ -129,3 +129,12 @@ def test_fresnel_mueller_matches_mitsuba(variant):
                 for j in range(4):
                     assert float(ours[i, j]) == pytest.approx(first(theirs[i, j]), abs=2e-6)
                     assert float(ours_t[i, j]) == pytest.approx(first(theirs_t[i, j]), abs=2e-6)
+
+
+@pytest.mark.parametrize("eta", ETAS)
+def test_normal_incidence_reflectance_is_eq2_at_zero_angle(eta):
+    from polarbssrdf.optics.fresnel import normal_incidence_reflectance
+
+    R_perp, R_par = fresnel_reflectance(1.0, eta)
+    assert normal_incidence_reflectance(eta) == pytest.approx(R_perp, rel=1e-12)
+    assert normal_incidence_reflectance(eta) == pytest.approx(R_par, rel=1e-12)

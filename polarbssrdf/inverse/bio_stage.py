@@ -1,0 +1,210 @@
+"""The biophysical stage of ``reconstruct``: result maps -> ``bio/maps_f####.exr``, previews, summary.
+
+Reads the subsurface albedo maps an earlier stage registered in
+``result.json`` (the per-frame ``dynamic`` maps where they exist, else the
+``static`` maps), fits melanin and hemoglobin with
+:func:`polarbssrdf.inverse.biophysical.fit_biophysical`, and writes per frame
+
+* ``bio/maps_f####.exr``: ``C_m, beta_m, C_h_out, C_h_in`` (volume fractions),
+  ``residual`` (RMS over bands of rendered minus input albedo) and
+  ``flagged`` (1 where the input was invalid and the values are filled in);
+* ``bio/previews/<map>_f####.png`` with colour bars and units;
+* ``bio/summary.json``: mean and standard deviation per region and frame in
+  the layout of the supplement's Table 2 (:func:`region_summary`).
+
+Frames: the first frame is fitted from the per-texel start; every later
+frame starts from the first frame's maps and, by default, holds ``C_m`` and
+``beta_m`` there (melanin does not change within seconds; ``bio.free_melanin``
+frees them). Each frame is :func:`fit_frame`, a pure function of (the first
+frame's biophysical maps, that frame's albedo maps), so frames can run in
+parallel; a frame whose file exists is skipped on resume.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from polarbssrdf.inverse.biophysical import BiophysicalConfig, fit_biophysical
+from polarbssrdf.inverse.biophysical_model import PARAMETERS
+
+STAGE = "bio"
+SUMMARY_FILE = "summary.json"
+SOURCE_STAGES = ("dynamic", "static")
+"""Where the albedo maps come from, first choice first."""
+
+UNITS = {"C_m": "volume fraction", "beta_m": "fraction of melanin",
+         "C_h_out": "volume fraction", "C_h_in": "volume fraction", "residual": "albedo",
+         "flagged": "1"}
+"""Units of the stage's channels (``C_m``: melanin in the epidermis; ``beta_m``: eumelanin
+share of it; ``C_h_out``/``C_h_in``: blood in the epidermis/dermis)."""
+
+
+def bio_config(settings):
+    """:class:`BiophysicalConfig` from a config's ``bio`` object (keys of the dataclass)."""
+    import dataclasses
+
+    settings = dict(settings or {})
+    free = bool(settings.pop("free_melanin", False))
+    known = {f.name for f in dataclasses.fields(BiophysicalConfig)}
+    unknown = sorted(set(settings) - known)
+    if unknown:
+        raise ValueError(f"config: unknown bio key(s) {unknown}; known: "
+                         f"{sorted(known | {'free_melanin'})}")
+    return BiophysicalConfig(**settings), free
+
+
+def source_frames(outdir):
+    """``(stage, [frames])`` of the albedo maps the stage reads (dynamic first, else static)."""
+    from polarbssrdf.inverse.result import read_result
+
+    manifest = read_result(outdir)
+    for stage in SOURCE_STAGES:
+        frames = sorted(r["frame"] for r in manifest.maps if r["stage"] == stage)
+        if frames:
+            return stage, frames
+    raise FileNotFoundError(
+        f"{Path(outdir) / 'result.json'} lists no static or dynamic maps: the biophysical stage "
+        "fits their subsurface albedo; run the static stage first ('--stages static,bio')")
+
+
+def albedo_inputs(maps, bands):
+    """The channels :func:`fit_biophysical` reads from a result's map file."""
+    wanted = [f"rho_sss.{band.name}" for band in bands] + ["eta", "confidence"]
+    missing = [name for name in wanted[:len(bands)] if name not in maps]
+    if missing:
+        raise ValueError(f"the maps lack {', '.join(missing)} (they have "
+                         f"{', '.join(sorted(maps))})")
+    return {name: maps[name] for name in wanted if name in maps}
+
+
+def fit_frame(albedo_maps, bands, atlas, config, reference=None, free_melanin=False):
+    """One frame's biophysical fit: a pure function of its inputs.
+
+    Parameters
+    ----------
+    albedo_maps : dict
+        ``rho_sss.<band>`` (and optional ``eta``, ``confidence``) of the frame.
+    reference : dict, optional
+        The first frame's biophysical maps: the start, and (unless
+        ``free_melanin``) the held values of ``C_m`` and ``beta_m``.
+
+    Returns
+    -------
+    BiophysicalResult
+    """
+    held = None
+    if reference is not None and not free_melanin:
+        held = {name: reference[name] for name in ("C_m", "beta_m")}
+    start = None if reference is None else {name: reference[name] for name in PARAMETERS}
+    return fit_biophysical(albedo_maps, bands, atlas, config, start=start, held=held)
+
+
+def region_masks(capture, mesh, atlas):
+    """``name -> (T, T) bool`` regions of the summary: ``surface`` always; on the embedded
+    face (same landmark UVs) ``forehead``, ``cheek_left``, ``cheek_right``, ``cheeks``; and
+    any ``regions/<name>.png`` masks in the capture directory (non-zero = inside, resampled
+    to the texture)."""
+    from polarbssrdf.geometry.face import face_mesh, face_region_masks
+
+    T = atlas.resolution
+    masks = {"surface": np.asarray(atlas.valid, bool)}
+    canonical = face_mesh(0)
+    n = len(canonical.uvs)
+    if len(mesh.uvs) >= n and np.allclose(mesh.uvs[:n], canonical.uvs, atol=1e-6):
+        for name, mask in face_region_masks(T, mesh).items():
+            masks[name] = mask & atlas.valid
+    directory = Path(capture.directory) / "regions"
+    if directory.is_dir():
+        from PIL import Image
+
+        for path in sorted(directory.glob("*.png")):
+            image = Image.open(path).convert("L").resize((T, T), Image.NEAREST)
+            # an image of the UV layout has OBJ v = 1 in its top row, which is row 0 of the
+            # package's maps (Mitsuba v = 1 - OBJ v): no flip
+            mask = np.asarray(image) > 0
+            masks[path.stem] = mask & atlas.valid
+    return masks
+
+
+def region_summary(maps_per_frame, masks):
+    """Mean and standard deviation per region and frame, Table 2's layout.
+
+    Returns ``{"parameters": [...], "regions": {region: {"texels": n, "frames":
+    {frame: {parameter: {"mean", "std"}}}}}}``; texels flagged as invalid input
+    are left out.
+    """
+    regions = {}
+    for name, mask in masks.items():
+        frames = {}
+        texels = 0
+        for frame, maps in sorted(maps_per_frame.items()):
+            inside = mask & (np.asarray(maps.get("flagged", 0.0)) == 0)
+            texels = int(inside.sum())
+            if texels == 0:
+                continue
+            frames[str(frame)] = {p: {"mean": float(np.mean(maps[p][inside])),
+                                      "std": float(np.std(maps[p][inside]))} for p in PARAMETERS}
+        if frames:
+            regions[name] = {"texels": texels, "frames": frames}
+    return {"parameters": list(PARAMETERS), "units": {p: UNITS[p] for p in PARAMETERS},
+            "regions": regions}
+
+
+def write_bio_previews(channels, directory, frame):
+    """Previews of the four maps and the residual (colour bars, units)."""
+    from polarbssrdf.inverse.previews import write_map_previews
+
+    shown = {name: channels[name] for name in (*PARAMETERS, "residual")}
+    return write_map_previews(shown, directory, f"f{frame:04d}", units=UNITS)
+
+
+def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False, progress=True):
+    """Fit every source frame of ``outdir`` and write the stage's files; returns a summary dict."""
+    from tqdm import tqdm
+
+    from polarbssrdf.geometry import texel_atlas, to_mitsuba
+    from polarbssrdf.inverse.result import read_stage_maps, stage_map_path, write_stage_maps
+    from polarbssrdf.io.atomic import atomic_write_text
+    from polarbssrdf.io.exr import read_exr
+
+    outdir = Path(outdir)
+    config, free_melanin = bio_config(settings)
+    source, frames = source_frames(outdir)
+    bands = list(capture.manifest.bands)
+    mesh = capture.load_mesh()
+    atlas = texel_atlas(to_mitsuba(mesh), texture_size)
+    started = time.perf_counter()
+    fitted = {}
+    reference = None
+    with tqdm(total=len(frames), desc=STAGE, unit="frame", disable=not progress) as bar:
+        for frame in frames:
+            path = outdir / stage_map_path(STAGE, frame)
+            if resume and path.is_file():
+                fitted[frame], _ = read_exr(path)
+            else:
+                inputs = albedo_inputs(read_stage_maps(outdir, source, frame), bands)
+                try:
+                    result = fit_frame(inputs, bands, atlas, config, reference, free_melanin)
+                except ValueError as error:
+                    raise ValueError(f"bio, frame {frame} ({source} maps): {error}") from None
+                channels = result.channels()
+                write_stage_maps(outdir, STAGE, frame, channels,
+                                 {"source_stage": source, "history": result.history,
+                                  "seconds": round(result.seconds, 3),
+                                  "held": [] if reference is None or free_melanin
+                                  else ["C_m", "beta_m"]})
+                write_bio_previews(channels, outdir / STAGE / "previews", frame)
+                fitted[frame] = channels
+            if reference is None:
+                reference = {name: fitted[frame][name] for name in PARAMETERS}
+            bar.update()
+    summary = region_summary(fitted, region_masks(capture, mesh, atlas))
+    summary.update(source_stage=source, frames=frames,
+                   seconds=round(time.perf_counter() - started, 3))
+    atomic_write_text(outdir / STAGE / SUMMARY_FILE, json.dumps(summary, indent=1) + "\n",
+                      overwrite=True)
+    return summary
