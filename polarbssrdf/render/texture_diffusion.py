@@ -148,18 +148,29 @@ def _tap_sums(sources, variances, half_widths, axis, geometry, adjoint=False):
     size = geometry.shape[0] * geometry.shape[1]
     texel_mm = geometry.texel_mm_jit[axis]
     totals = [dr.zeros(Float, size) for _ in sources]
+    if not adjoint:
+        # g(o, t) = q^(o^2) with q = exp(-t^2 / 2v): two products per tap instead of an exp
+        q = [dr.exp(dr.square(texel_mm) * dr.opaque(Float, -0.5 / v)) for v in variances]
+        weight = [Float(1.0) for _ in sources]
+        ratio = list(q)  # q^(2o - 1) at offset o
+        q2 = [dr.square(x) for x in q]
     for offset in range(0, max(half_widths) + 1):
+        if not adjoint and offset > 0:
+            for j in range(len(sources)):
+                weight[j] = weight[j] * ratio[j]
+                ratio[j] = ratio[j] * q2[j]
         for sign in ((1,) if offset == 0 else (1, -1)):
             inside, neighbour = _neighbours(axis, geometry, offset, -sign if adjoint else sign)
-            distance2 = float(offset * offset) * dr.square(
-                dr.gather(Float, texel_mm, neighbour) if adjoint else texel_mm)
+            if adjoint:
+                distance2 = float(offset * offset) * dr.square(dr.gather(Float, texel_mm, neighbour))
             for j, (source, variance, half_width) in enumerate(zip(sources, variances,
                                                                       half_widths)):
                 if offset > half_width:
                     continue
-                weight = dr.exp(distance2 * dr.opaque(Float, -0.5 / variance))
+                tap = (dr.exp(distance2 * dr.opaque(Float, -0.5 / variance)) if adjoint
+                       else weight[j])
                 value = dr.gather(Float, geometry.valid if source is None else source, neighbour)
-                totals[j] += dr.select(inside, weight * value, 0.0)
+                totals[j] += dr.select(inside, tap * value, 0.0)
     return totals
 
 

@@ -116,3 +116,39 @@ def test_a_thin_line_spreads_with_the_skin_profile_width_and_keeps_its_energy(ba
     assert 0.05 < expected < 3.0  # mm: a real, resolved skin profile
     # energy along the row (the line spans every row): conserved away from the borders
     assert profile.sum() == pytest.approx(1.0, rel=0.01)
+
+
+def test_the_widest_skin_kernel_is_not_truncated_at_2k():
+    """Every Table 2 profile's widest kept Gaussian fits in the tap budget at 2048^2 texel sizes,
+    and a Gaussian of that width keeps its variance there."""
+    from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
+    from polarbssrdf.render.subsurface import layer_profile_kernels
+    from polarbssrdf.render.texture_diffusion import MAX_TAPS_PER_SIDE, half_width_texels
+    from polarbssrdf.skin.parameters import TABLE2
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    from polarbssrdf.spectral import default_bands
+
+    atlas = texel_atlas(to_mitsuba(face_mesh(1)), 128)
+    sizes_2k = atlas.texel_size_mm * (128 / 2048)  # texel extent scales as 1 / T
+    widest = 0.0
+    for skin in TABLE2.values():
+        for band in layer_profile_kernels(default_bands(), skin):
+            for weights, variances in band.values():
+                weights, variances = np.asarray(weights), np.asarray(variances)
+                kept = weights >= 1e-4 * np.abs(weights).sum()  # blur_sum_of_gaussians' cut
+                widest = max(widest, float(variances[kept].max()))
+    taps = max(half_width_texels(widest, sizes_2k[..., axis], atlas.valid) for axis in (0, 1))
+    smallest = float(sizes_2k[..., 0][atlas.valid].min())
+    assert np.ceil(4.0 * np.sqrt(widest) / smallest) <= taps < MAX_TAPS_PER_SIDE
+    # that width on texels of the smallest 2K size: the variance comes out whole
+    size = 4 * taps + 21  # texels the impulse reaches see their whole window
+    sizes = np.full((size, size, 2), smallest)
+    impulse = np.zeros((size, size), np.float32)
+    impulse[size // 2, size // 2] = 1.0
+    out = blur_separable(impulse, widest, sizes, np.ones((size, size), bool))
+    i, j = np.mgrid[0:size, 0:size]
+    total = out.sum()
+    var_u = (out * ((j - size // 2) * smallest) ** 2).sum() / total
+    assert total == pytest.approx(1.0, rel=1e-4)
+    assert var_u == pytest.approx(widest, rel=0.01)
