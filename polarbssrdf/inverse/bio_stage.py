@@ -58,17 +58,24 @@ def bio_config(settings):
 
 
 def source_frames(outdir):
-    """``(stage, [frames])`` of the albedo maps the stage reads (dynamic first, else static)."""
+    """``{frame: stage}`` of the albedo maps the stage reads: a frame's ``dynamic`` maps where
+    they exist, else its ``static`` maps; in frame order (the static frame first)."""
     from polarbssrdf.inverse.result import read_result
 
     manifest = read_result(outdir)
-    for stage in SOURCE_STAGES:
-        frames = sorted(r["frame"] for r in manifest.maps if r["stage"] == stage)
-        if frames:
-            return stage, frames
-    raise FileNotFoundError(
-        f"{Path(outdir) / 'result.json'} lists no static or dynamic maps: the biophysical stage "
-        "fits their subsurface albedo; run the static stage first ('--stages static,bio')")
+    sources = {}
+    for stage in reversed(SOURCE_STAGES):  # static first, then dynamic overrides
+        for record in manifest.maps:
+            if record["stage"] == stage:
+                sources[record["frame"]] = stage
+    if not sources:
+        raise FileNotFoundError(
+            f"{Path(outdir) / 'result.json'} lists no static or dynamic maps: the biophysical "
+            "stage fits their subsurface albedo; run the static stage first "
+            "('--stages static,bio')")
+    static = sorted(f for f, stage in sources.items() if stage == "static")
+    others = sorted(f for f in sources if f not in static)
+    return {frame: sources[frame] for frame in static + others}
 
 
 def albedo_inputs(maps, bands):
@@ -173,7 +180,8 @@ def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False,
 
     outdir = Path(outdir)
     config, free_melanin = bio_config(settings)
-    source, frames = source_frames(outdir)
+    sources = source_frames(outdir)
+    frames = list(sources)
     bands = list(capture.manifest.bands)
     mesh = capture.load_mesh()
     atlas = texel_atlas(to_mitsuba(mesh), texture_size)
@@ -186,6 +194,7 @@ def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False,
             if resume and path.is_file():
                 fitted[frame], _ = read_exr(path)
             else:
+                source = sources[frame]
                 inputs = albedo_inputs(read_stage_maps(outdir, source, frame), bands)
                 try:
                     result = fit_frame(inputs, bands, atlas, config, reference, free_melanin)
@@ -203,7 +212,7 @@ def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False,
                 reference = {name: fitted[frame][name] for name in PARAMETERS}
             bar.update()
     summary = region_summary(fitted, region_masks(capture, mesh, atlas))
-    summary.update(source_stage=source, frames=frames,
+    summary.update(source_stages={str(f): stage for f, stage in sources.items()}, frames=frames,
                    seconds=round(time.perf_counter() - started, 3))
     atomic_write_text(outdir / STAGE / SUMMARY_FILE, json.dumps(summary, indent=1) + "\n",
                       overwrite=True)

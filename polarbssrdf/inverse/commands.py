@@ -18,10 +18,10 @@ from pathlib import Path
 
 from polarbssrdf.errors import CommandError
 
-STAGES = ("static", "bio")
-"""The stages ``--stages`` accepts, in the order they run (the dynamic stage comes later)."""
+STAGES = ("static", "dynamic", "bio")
+"""The stages ``--stages`` accepts, in the order they run."""
 
-DEFAULT_STAGES = ("static", "bio")
+DEFAULT_STAGES = STAGES
 DEFAULT_VARIANT = "llvm_ad_mono_polarized"
 DEFAULT_TEXTURE = 512
 """Texture size without ``--texture`` when the capture has no ground truth."""
@@ -79,8 +79,9 @@ def register(subparsers) -> None:
                         help="map size T x T in texels (default: the capture's truth texture "
                              f"size if it has ground truth, else {DEFAULT_TEXTURE})")
     parser.add_argument("--iterations", type=_integer_at_least(0), default=None, metavar="N",
-                        help="epochs of the static stage (default: the config's iterations, "
-                             f"{StaticConfig.iterations} unless --config sets it)")
+                        help="epochs of the static stage and of each dynamic frame (default: "
+                             f"the config's, {StaticConfig.iterations} and 50 unless --config "
+                             "sets them)")
     parser.add_argument("--config", type=Path, default=None, metavar="FILE.json",
                         help=f"JSON object overriding any StaticConfig key ({DOC}; default: "
                              "the paper's settings); --iterations wins over its 'iterations'")
@@ -99,6 +100,15 @@ def register(subparsers) -> None:
     parser.add_argument("--variant", default=DEFAULT_VARIANT,
                         help="Mitsuba variant, a JIT autodiff polarized one "
                              "(default: %(default)s)")
+    cluster = parser.add_mutually_exclusive_group()
+    cluster.add_argument("--workers", type=_integer_at_least(1), default=None, metavar="N",
+                         help="run the dynamic stage's frames on a local Dask cluster of N "
+                              "single-threaded worker processes (default: one after another "
+                              "in this process)")
+    cluster.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                         help="run the dynamic stage's frames on an existing Dask cluster, e.g. "
+                              "tcp://10.0.0.1:8786 (its workers must see CAPTURE and OUTDIR at "
+                              "the same paths)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.set_defaults(run=run_reconstruct)
 
@@ -182,20 +192,26 @@ def load_config(path, iterations):
     from polarbssrdf.inverse.config import load_static_config, static_config
 
     changes = {} if iterations is None else {"iterations": iterations}
-    if path is None:
-        return static_config(**changes)
-    return load_static_config(path, **changes)
+    config = static_config(**changes) if path is None else load_static_config(path, **changes)
+    if iterations is not None and "iterations" not in config.dynamic:
+        # --iterations sets the epochs of both polarimetric stages
+        config.dynamic = {**config.dynamic, "iterations": iterations}
+    return config
 
 
-def load_input_capture(path: Path):
-    """The capture of ``CAPTURE`` (manifests only), with a one-line error for each problem."""
+def load_input_capture(path: Path, frame: int | None = None):
+    """The capture of ``CAPTURE`` (manifests only), with a one-line error for each problem.
+
+    With ``frame``, only that frame's image files must exist: the dynamic stage
+    checks every other frame when it starts it, so a missing image fails only its frame.
+    """
     from polarbssrdf.io import load_capture
 
     if not path.exists():
         raise FileNotFoundError(f"capture directory '{path}' does not exist")
     if not path.is_dir():
         raise CommandError(f"capture '{path}' is not a directory")
-    capture = load_capture(path, check_images=False)
+    capture = load_capture(path, check_images=False, frames=None if frame is None else [frame])
     if capture.manifest.mesh is None:
         raise CommandError(f"capture '{path}' has no mesh: the stages work in the texture space "
                            "of the object's mesh (with UVs); add one to capture.json ('mesh')")
@@ -301,7 +317,7 @@ def run_reconstruct(args) -> int:
     check_variant(args.variant, mi.variants())
     holdout = _name_list(args.holdout)
     config = load_config(args.config, args.iterations)
-    capture = load_input_capture(args.capture)
+    capture = load_input_capture(args.capture, args.frame)
     check_frame_and_holdout(capture, args.frame, holdout)
     if args.texture is not None:
         texture = args.texture
@@ -313,16 +329,16 @@ def run_reconstruct(args) -> int:
     if outdir.exists() and not outdir.is_dir():
         raise CommandError(f"output directory '{outdir}' exists and is not a directory")
     settings = run_settings(stages, config, holdout, args.frame)
-    if args.resume and outdir.is_dir() and any(outdir.iterdir()):
+    # later stages on an earlier run read its maps and add their own (no --resume needed)
+    continuing = stages[0] != STAGES[0] and not args.overwrite
+    if args.resume and not continuing and outdir.is_dir() and any(outdir.iterdir()):
         differences = resume_differences(outdir, capture.directory, texture, settings)
         if differences:
             raise CommandError(f"cannot resume in '{outdir}': it holds a run with other settings "
                                f"({'; '.join(differences)}); rerun with its settings to continue "
                                "it, or pass --overwrite instead of --resume to start over")
     select_variant(args.variant)
-    continuing = stages[0] != STAGES[0] and not args.overwrite
     if continuing:
-        # later stages on an earlier run: they read its maps and add their own
         from polarbssrdf.inverse.result import continue_result_directory
 
         continue_result_directory(outdir, capture.directory, texture)
@@ -332,6 +348,7 @@ def run_reconstruct(args) -> int:
 
     progress = not args.quiet
     lines = []
+    failed = {}
     for stage in stages:
         if stage == "static":
             from polarbssrdf.inverse.static import run_static_stage
@@ -346,14 +363,29 @@ def run_reconstruct(args) -> int:
                          f"epochs, {'?' if views is None else f'{views:,}'} texel-views"
                          + (f", final loss {final:.4g}" if final is not None else "")
                          + f", {time.perf_counter() - stage_start:.1f} s)")
+        elif stage == "dynamic":
+            from polarbssrdf.inverse.dynamic import run_dynamic_stage
+
+            stage_start = time.perf_counter()
+            report = run_dynamic_stage(capture, outdir, texture, config, holdout=tuple(holdout),
+                                       static_frame=args.frame, workers=args.workers,
+                                       scheduler=args.scheduler,
+                                       resume=args.resume or continuing, progress=progress,
+                                       variant=args.variant)
+            failed.update(report["failed"])
+            lines.append(f"  dynamic: {len(report['done'])} frame(s) fitted"
+                         + (f", {len(report['skipped'])} already done" if report["skipped"] else "")
+                         + (f", {len(report['failed'])} failed" if report["failed"] else "")
+                         + f" -> {outdir / 'dynamic'} ({time.perf_counter() - stage_start:.1f} s)")
         elif stage == "bio":
             from polarbssrdf.inverse.bio_stage import run_bio_stage
 
             stage_start = time.perf_counter()
             summary = run_bio_stage(capture, outdir, texture, config.bio,
                                     resume=args.resume or continuing, progress=progress)
+            kinds = sorted(set(summary["source_stages"].values()))
             lines.append(f"  bio: {len(summary['frames'])} frame(s) from the "
-                         f"{summary['source_stage']} maps -> {outdir / 'bio'} (maps, previews, "
+                         f"{' and '.join(kinds)} maps -> {outdir / 'bio'} (maps, previews, "
                          f"summary.json; {time.perf_counter() - stage_start:.1f} s)")
     seconds = time.perf_counter() - started
     held = f"; held out {', '.join(holdout)}" if holdout else ""
@@ -363,6 +395,13 @@ def run_reconstruct(args) -> int:
         print(line)
     print(f"  result.json, metrics.json and previews in {outdir}; score it with "
           f"'polarbssrdf evaluate {outdir}'")
+    if failed:
+        for frame, reason in sorted(failed.items()):
+            print(f"polarbssrdf reconstruct: frame {frame} failed: {reason}", file=sys.stderr)
+        print(f"polarbssrdf reconstruct: {len(failed)} frame(s) failed; result.json lists the "
+              "others; fix the input and rerun with --resume to do only the missing ones",
+              file=sys.stderr)
+        return 1
     return 0
 
 

@@ -127,6 +127,10 @@ class StaticConfig:
         epochs. ``False`` uses every core.
     polarimetric : bool
         Use ``L_psi`` and ``L_phi``; ``False`` is the ablation without them.
+    dynamic : dict
+        Settings of the dynamic stage: ``iterations`` (epochs per frame,
+        default 50) and ``weights`` (keys of
+        :data:`polarbssrdf.inverse.dynamic.DYNAMIC_WEIGHTS`, eq. 36-39).
     bio : dict
         Settings of the biophysical stage: any key of
         :class:`polarbssrdf.inverse.biophysical.BiophysicalConfig`, and
@@ -159,6 +163,7 @@ class StaticConfig:
     deterministic: bool = True
     polarimetric: bool = True
     coaxial: bool = False
+    dynamic: dict = dataclasses.field(default_factory=dict)
     bio: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
@@ -200,6 +205,11 @@ class StaticConfig:
         _finite(self.min_cosine, "min_cosine", minimum=0.0, maximum=1.0)
         _finite(self.residual_limit, "residual_limit", minimum=0.0)
         _finite(self.photometric_noise, "photometric_noise", minimum=1e-6)
+        if not isinstance(self.dynamic, dict):
+            raise ValueError(f"config: dynamic must be an object, got {self.dynamic!r}")
+        from polarbssrdf.inverse.dynamic import parse_dynamic
+
+        parse_dynamic(self.dynamic, self.iterations)
         if not isinstance(self.bio, dict):
             raise ValueError(f"config: bio must be an object, got {self.bio!r}")
         from polarbssrdf.inverse.bio_stage import bio_config
@@ -246,7 +256,7 @@ def static_config(overrides=None, **changes) -> StaticConfig:
             raise ValueError(f"config: unknown key(s) {unknown}; known: "
                              f"{sorted(f.name for f in dataclasses.fields(StaticConfig))}")
         for key, value in source.items():
-            if key in ("weights", "bounds", "initial", "learning_rates", "bio"):
+            if key in ("weights", "bounds", "initial", "learning_rates", "dynamic", "bio"):
                 if not isinstance(value, dict):
                     raise ValueError(f"config: {key} must be an object, got {value!r}")
                 merged = dict(data.get(key) or getattr(StaticConfig(), key))

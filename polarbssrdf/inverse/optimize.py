@@ -48,6 +48,9 @@ from polarbssrdf.optics.fresnel import normal_incidence_reflectance
 
 GLOSSY_ALBEDOS = ("rho_s", "rho_ss")
 
+TEMPORAL_TERMS = ("rho_s_temporal", "rho_ss_temporal", "rho_sss_temporal")
+"""The dynamic stage's pulls toward the static maps (eq. 38-39)."""
+
 REGULARIZER_TERMS = ("H_magnitude", "H_laplacian", "alpha_s_smoothness", "alpha_ss_smoothness",
                      "eta_smoothness")
 
@@ -95,6 +98,19 @@ class MapParameters:
             self.optimizer[name] = TensorXf(np.ascontiguousarray(maps[name], np.float32))
         self.scale_learning_rates(1.0)
         self.rho_sss = np.array(rho_sss, dtype=np.float32)
+        self.reference = None
+        """The dynamic stage's static maps (:meth:`set_reference`), or None."""
+
+    def set_reference(self, maps, rho_sss, weights):
+        """Pull ``rho_s``, ``rho_ss`` and ``rho_sss`` toward ``maps`` (supplement eq. 38-39).
+
+        ``maps``: ``rho_s``, ``rho_ss`` (T, T); ``rho_sss``: (n_bands, T, T);
+        ``weights``: ``{"rho_s_temporal", "rho_ss_temporal", "rho_sss_temporal"}``.
+        """
+        self.reference = {name: self.TensorXf(np.ascontiguousarray(maps[name], np.float32))
+                          for name in GLOSSY_ALBEDOS}
+        self.reference["rho_sss"] = np.array(rho_sss, np.float32).reshape(len(rho_sss), -1)
+        self.reference_weights = {name: float(weights.get(name, 0.0)) for name in TEMPORAL_TERMS}
 
     def scale_learning_rates(self, factor):
         """Set every map's learning rate to ``factor`` times its start value."""
@@ -233,7 +249,7 @@ def usable_views(prepared, normal, config):
     return dr.select((cos_view > config.min_cosine) & (cos_light > config.min_cosine), 1.0, 0.0)
 
 
-def solve_subsurface_albedo(stokes, prepared, weight, previous):
+def solve_subsurface_albedo(stokes, prepared, weight, previous, temporal=None):
     """Least-squares ``rho_sss`` per window texel and band from ``L_sss`` (eq. 27), >= 0.
 
     ``I90 = A + rho B`` per texel-view (glossy and unit-albedo subsurface
@@ -244,6 +260,11 @@ def solve_subsurface_albedo(stokes, prepared, weight, previous):
     ----------
     previous : (n_bands, n_window) float32
         Current values over the window.
+    temporal : tuple, optional
+        ``(reference, strength, data_scale)``: the dynamic stage's eq. 39 term
+        ``strength_i (rho - reference)^2`` per window texel and band, added to
+        the data term scaled by ``data_scale`` (its weight per squared residual
+        in the loss); then ``rho = (s num + c ref) / (s den + c)``.
 
     Returns
     -------
@@ -264,8 +285,37 @@ def solve_subsurface_albedo(stokes, prepared, weight, previous):
         dr.scatter_add(numerator, weight * B90 * (observed[2] - A90), prepared.texel)
         numerator = np.array(numerator)
         known = denominator > 1e-30 * max(float(denominator.max(initial=0.0)), 1e-30)
-        solved[band, known] = np.maximum(numerator[known] / denominator[known], 0.0)
+        if temporal is None:
+            solved[band, known] = np.maximum(numerator[known] / denominator[known], 0.0)
+            continue
+        reference, strength, scale = temporal
+        # I_sss = 2 I90: the residual of L_sss is twice I90's
+        top = 4.0 * scale * numerator + strength * reference[band]
+        bottom = 4.0 * scale * denominator + strength
+        solved[band, known] = np.maximum(top[known] / bottom[known], 0.0)
     return solved
+
+
+def _temporal_albedo_term(params, prepared, weight, config, current):
+    """``(reference, strength, data_scale)`` of eq. 39 for the albedo solve, or None.
+
+    Eq. 39's weight ``W = |mean_b rho0 - mean_b rho|`` per texel (the change of
+    the albedo's intensity, from the current values): a change of
+    chromaticity (hemoglobin) is free, a change of brightness is pulled back.
+    ``strength = lambda W / n_valid`` (the term is a mean over the window's
+    valid texels, like the other regularizers); ``data_scale = 1 / (sigma^2
+    count)``, the weight of a squared ``I_sss`` residual in ``L_sss``.
+    """
+    if params.reference is None or params.reference_weights["rho_sss_temporal"] <= 0:
+        return None
+    reference = params.reference["rho_sss"][:, prepared.window_index]
+    change = np.abs(reference.mean(axis=0) - np.asarray(current).mean(axis=0))
+    valid = prepared.window_valid.ravel()
+    strength = (params.reference_weights["rho_sss_temporal"] * change * valid
+                / max(float(valid.sum()), 1.0))
+    count = max(float(dr.sum(weight)[0]), 1.0)
+    sigma = config.photometric_noise * prepared.image_scale
+    return reference, strength, 1.0 / (sigma * sigma * count)
 
 
 def texel_view_terms(params, prepared, config, solve_albedo=True):
@@ -285,7 +335,9 @@ def texel_view_terms(params, prepared, config, solve_albedo=True):
     flat_rho = params.rho_sss.reshape(len(params.rho_sss), T * T)
     solved = flat_rho[:, prepared.window_index]
     if solve_albedo:
-        solved = solve_subsurface_albedo(stokes, prepared, weight, solved)
+        solved = solve_subsurface_albedo(stokes, prepared, weight, solved,
+                                         _temporal_albedo_term(params, prepared, weight, config,
+                                                               solved))
         flat_rho[:, prepared.window_index] = solved
     Float = type(weight)
     glossy_I_s = stokes.glossy[1]  # I0 - I90 of the glossy lobes is S1
@@ -318,6 +370,12 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True):
     terms["H_laplacian"] = displacement_laplacian(values["displacement"], stencils)
     for name in ("alpha_s", "alpha_ss", "eta"):
         terms[f"{name}_smoothness"] = neighbourhood_smoothness(values[name], stencils)
+    if params.reference is not None:
+        valid = prepared.window_valid_jit
+        for name in GLOSSY_ALBEDOS:
+            reference = _window_values(params.reference[name], prepared)
+            terms[f"{name}_temporal"] = (dr.sum(valid * dr.square(values[name] - reference))
+                                         / max(float(prepared.window_valid.sum()), 1.0))
     total = sum(float(weights.get(name, 0.0)) * terms[name] for name in terms)
     return terms, total, weight
 

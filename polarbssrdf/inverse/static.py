@@ -72,7 +72,8 @@ def run_fingerprint(config, texture_size, bands, texel_views):
 
     settings = dict(config.to_json())
     settings.pop("iterations")  # a run may be extended by more epochs
-    settings.pop("bio", None)  # the biophysical stage does not change the fit
+    settings.pop("bio", None)  # the later stages' settings do not change this fit
+    settings.pop("dynamic", None)
     text = json.dumps({"config": settings, "texture": int(texture_size), "bands": list(bands),
                        "texel_views": int(texel_views)}, sort_keys=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]

@@ -637,7 +637,8 @@ def _with_source(error: CaptureFormatError, source: Path) -> CaptureFormatError:
                               error.problem)
 
 
-def load_capture(directory: str | os.PathLike, check_images: bool = True) -> Capture:
+def load_capture(directory: str | os.PathLike, check_images: bool = True,
+                 frames=None) -> Capture:
     """Load and validate a capture directory.
 
     Parameters
@@ -648,6 +649,10 @@ def load_capture(directory: str | os.PathLike, check_images: bool = True) -> Cap
         Also read every image (and truth map) and check its channel set, size,
         finiteness and, for analyser images, non-negativity. Without it only
         the manifests and the existence of every referenced file are checked.
+    frames:
+        Frame indices whose image files are checked (default: every frame). A
+        stage that runs frames independently checks each frame's images when
+        it starts that frame, so one missing image fails only its frame.
 
     Returns
     -------
@@ -675,7 +680,10 @@ def load_capture(directory: str | os.PathLike, check_images: bool = True) -> Cap
         manifest = CaptureManifest.from_json(document)
     except CaptureFormatError as error:
         raise _with_source(error, manifest_path) from None
+    checked = None if frames is None else {int(f) for f in frames}
     for k, frame in enumerate(manifest.frames):
+        if checked is not None and frame.index not in checked:
+            continue
         for i, record in enumerate(frame.images):
             if not (directory / record.path).is_file():
                 raise FileNotFoundError(f"{manifest_path}: frames[{k}].images[{i}].path: image file "
@@ -708,7 +716,8 @@ def load_capture(directory: str | os.PathLike, check_images: bool = True) -> Cap
     capture = Capture(directory, manifest, truth)
     if check_images:
         for frame, record in manifest.records():
-            _read_image(directory, manifest, record)
+            if checked is None or frame.index in checked:
+                _read_image(directory, manifest, record)
         if truth is not None:
             for record in truth.maps:
                 _read_truth(directory, truth, record)

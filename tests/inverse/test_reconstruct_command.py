@@ -231,7 +231,7 @@ def test_user_errors_are_one_line_with_status_2(case, capture_dir, config_file, 
     expected = []
     if case == "stage":
         extra = ["--stages", "static,colour"]
-        expected = ["unknown stage 'colour'", "known stages: static, bio"]
+        expected = ["unknown stage 'colour'", "known stages: static, dynamic, bio"]
     elif case == "holdout":
         extra = ["--holdout", "cam01,cam99"]
         expected = ["cam99", "cam00, cam01, cam02, cam03"]

@@ -1,0 +1,71 @@
+"""Run independent frames serially, on a local Dask cluster, or on a remote one (one code path).
+
+``run_frames(task, frames)`` calls ``task(frame)`` for every frame and
+returns ``(records, failures)``: ``frame -> task's return value`` for the
+frames that finished, ``frame -> reason`` for those that raised. With
+``workers`` it starts a ``dask.distributed.LocalCluster`` of that many worker
+processes with one thread each (the task sets Dr.Jit's own thread count to
+match, so workers do not oversubscribe the cores); with ``scheduler`` it
+submits to an existing cluster (``dask scheduler`` + ``dask worker`` on
+machines that see the same paths); with neither, frames run in this process
+one after another. A worker that dies mid-frame has its frame rescheduled by
+Dask on another worker (up to ``allowed-failures``, 3 by default); an
+exception inside a frame is retried ``retries`` times, then reported. The
+task must be a pure function of its inputs: a rerun writes the same files.
+"""
+
+from __future__ import annotations
+
+import uuid
+
+
+def _reason(error):
+    return f"{type(error).__name__}: {error}"
+
+
+def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progress=True,
+               description="frames"):
+    """``(records, failures)`` of ``task`` over ``frames`` (see the module docstring)."""
+    from tqdm import tqdm
+
+    frames = list(frames)
+    records, failures = {}, {}
+    with tqdm(total=len(frames), desc=description, unit="frame", disable=not progress) as bar:
+        if workers is None and scheduler is None:
+            for frame in frames:
+                try:
+                    records[frame] = task(frame)
+                except (ValueError, OSError, RuntimeError) as error:
+                    failures[frame] = _reason(error)
+                bar.update()
+            return records, failures
+        from dask.distributed import Client, LocalCluster, as_completed
+
+        cluster = None
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=40)
+        client = Client(cluster if cluster is not None else scheduler)
+        try:
+            token = uuid.uuid4().hex[:8]  # a rerun must not reuse an earlier run's results
+            futures = {client.submit(task, frame, key=f"{description}-f{frame:04d}-{token}",
+                                     retries=retries, pure=False): frame for frame in frames}
+            for future in as_completed(futures):
+                frame = futures[future]
+                try:
+                    records[frame] = future.result()
+                except Exception as error:  # noqa: BLE001 - reported per frame, the rest go on
+                    failures[frame] = _reason(error)
+                bar.update()
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    return records, failures
+
+
+def scheduling_overhead(records, wall_seconds, workers):
+    """Share of the wall time not spent inside frames: ``1 - sum(frame s) / (workers x wall)``."""
+    busy = sum(float(r.get("seconds", 0.0)) for r in records.values())
+    return max(0.0, 1.0 - busy / (max(int(workers), 1) * max(wall_seconds, 1e-9)))
+

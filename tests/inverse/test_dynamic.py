@@ -1,0 +1,208 @@
+"""The dynamic stage: per-frame maps of a flushing face, temporal regularization, Dask, faults."""
+
+import json
+import os
+import shutil
+import signal
+import threading
+
+import numpy as np
+import pytest
+
+import mitsuba as mi
+
+T = 64
+FRAMES = 5
+ITERATIONS = 30
+
+
+def _cli(*args):
+    from polarbssrdf.cli import main
+
+    return main([str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    """A 5-frame raw (sensor noise) face whose cheeks flush, its static result, and the dynamic
+    frames fitted serially."""
+    root = tmp_path_factory.mktemp("dynamic")
+    capture = root / "capture"
+    assert _cli("synth", capture, "--object", "face", "--views", "6", "--resolution", "128",
+                "--texture", T, "--spp", "4", "--frames", FRAMES, "--raw", "--quiet") == 0
+    static = root / "static"
+    assert _cli("reconstruct", capture, static, "--stages", "static", "--iterations", ITERATIONS,
+                "--quiet") == 0
+    serial = root / "serial"
+    shutil.copytree(static, serial)
+    assert _cli("reconstruct", capture, serial, "--stages", "dynamic", "--iterations", ITERATIONS,
+                "--quiet") == 0
+    return root, capture, static, serial
+
+
+def _maps(outdir, frame):
+    from polarbssrdf.inverse.result import read_stage_maps
+
+    return read_stage_maps(outdir, "static" if frame == 0 else "dynamic", frame)
+
+
+def _regions(outdir):
+    from polarbssrdf.geometry import face_region_masks
+
+    masks = face_region_masks(T)
+    seen = _maps(outdir, 0)["confidence"] > 0
+    return masks["cheeks"] & seen, masks["forehead"] & ~masks["cheeks"] & seen
+
+
+def test_frames_follow_the_flush_with_the_static_index_and_roughness(sequence):
+    from polarbssrdf.inverse.evaluate import evaluate_result
+    from polarbssrdf.inverse.result import read_result
+
+    _, capture, _, serial = sequence
+    records = {(r["stage"], r["frame"]) for r in read_result(serial).maps}
+    assert records == {("static", 0)} | {("dynamic", t) for t in range(1, FRAMES)}
+    cheeks, _ = _regions(serial)
+    static = _maps(serial, 0)
+    recovered, truth = [], []
+    from polarbssrdf.io.exr import read_exr
+
+    for frame in range(FRAMES):
+        maps = _maps(serial, frame)
+        true, _ = read_exr(capture / "truth" / f"maps_f{frame:04d}.exr")
+        bands = [k for k in maps if k.startswith("rho_sss.")]
+        recovered.append(np.mean([maps[b][cheeks].mean() for b in bands]))
+        truth.append(np.mean([true[b][cheeks].mean() for b in bands]))
+        for name in ("eta", "alpha_s", "alpha_ss"):
+            np.testing.assert_array_equal(maps[name], static[name], err_msg=name)
+        if frame:
+            report = evaluate_result(serial, frame=frame, stage="dynamic", holdout=False)
+            assert report["maps"]["normal"]["mean_deg"] < 2.0
+    recovered, truth = np.array(recovered), np.array(truth)
+    print("rho_sss in the cheeks: truth", truth.round(4), "recovered", recovered.round(4))
+    assert abs(truth[-1] - truth[0]) > 0.05 * truth[0]  # the sequence does change
+    assert np.corrcoef(recovered, truth)[0, 1] > 0.9
+    change, expected = recovered[-1] - recovered[0], truth[-1] - truth[0]
+    assert abs(change - expected) < 0.3 * abs(expected)
+
+
+def _frame_to_frame_spread(outdir, mask):
+    """Relative standard deviation over frames of the region means of rho_s and rho_sss."""
+    rho_s, rho_sss = [], []
+    for frame in range(1, FRAMES):
+        maps = _maps(outdir, frame)
+        rho_s.append(maps["rho_s"][mask].mean())
+        rho_sss.append(np.mean([maps[b][mask].mean() for b in maps if b.startswith("rho_sss.")]))
+    return np.std(rho_s) / np.mean(rho_s), np.std(rho_sss) / np.mean(rho_sss)
+
+
+def test_temporal_regularization_steadies_a_region_without_flush(sequence):
+    root, capture, static, serial = sequence
+    free = root / "free"
+    shutil.copytree(static, free)
+    config = root / "no_temporal.json"
+    config.write_text(json.dumps({"dynamic": {"weights": {"rho_s_temporal": 0.0,
+                                                          "rho_ss_temporal": 0.0,
+                                                          "rho_sss_temporal": 0.0}}}))
+    assert _cli("reconstruct", capture, free, "--stages", "dynamic", "--iterations", ITERATIONS,
+                "--config", config, "--quiet") == 0
+    _, steady = _regions(serial)
+    with_terms = _frame_to_frame_spread(serial, steady)
+    without = _frame_to_frame_spread(free, steady)
+    print("frame-to-frame spread (rho_s, rho_sss) with eq. 38-39:", with_terms, "without:", without)
+    assert with_terms[0] < 0.5 * without[0]  # the sensor noise makes rho_s flicker without them
+    # eq. 39 pulls only where the albedo's intensity changes (DYNAMIC_WEIGHTS): no worse
+    assert with_terms[1] <= 1.02 * without[1]
+    assert max(with_terms) < 0.01
+
+
+def _dynamic_copy(sequence, name, **kwargs):
+    from polarbssrdf.inverse.commands import select_variant
+    from polarbssrdf.inverse.config import static_config
+    from polarbssrdf.inverse.dynamic import run_dynamic_stage
+    from polarbssrdf.io import load_capture
+
+    root, capture, static, _ = sequence
+    outdir = root / name
+    shutil.copytree(static, outdir)
+    select_variant("llvm_ad_mono_polarized")
+    report = run_dynamic_stage(load_capture(capture, check_images=False), outdir, T,
+                               static_config(iterations=ITERATIONS,
+                                             dynamic={"iterations": ITERATIONS}),
+                               progress=False, **kwargs)
+    return outdir, report
+
+
+def test_serial_local_workers_and_a_scheduler_give_the_same_maps(sequence):
+    from dask.distributed import LocalCluster
+
+    _, _, _, serial = sequence
+    workers, report = _dynamic_copy(sequence, "workers", workers=2)
+    assert report["done"] == [1, 2, 3, 4] and not report["failed"]
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:
+        remote, report = _dynamic_copy(sequence, "scheduler", scheduler=cluster.scheduler_address)
+    assert report["done"] == [1, 2, 3, 4]
+    for frame in range(1, FRAMES):
+        expected = _maps(serial, frame)
+        for outdir in (workers, remote):
+            for name, values in _maps(outdir, frame).items():
+                np.testing.assert_allclose(values, expected[name], atol=1e-5, err_msg=name)
+
+
+def test_a_worker_killed_mid_frame_costs_nothing(sequence):
+    from dask.distributed import Client, LocalCluster
+
+    _, _, _, serial = sequence
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        client.run(lambda: None)  # both workers up
+        pids = list(client.run(os.getpid).values())
+        killer = threading.Timer(2.5, lambda: os.kill(pids[0], signal.SIGKILL))
+        killer.start()
+        try:
+            outdir, report = _dynamic_copy(sequence, "killed", scheduler=cluster.scheduler_address)
+        finally:
+            killer.cancel()
+    assert report["done"] == [1, 2, 3, 4] and not report["failed"]
+    for frame in range(1, FRAMES):
+        expected = _maps(serial, frame)
+        for name, values in _maps(outdir, frame).items():
+            np.testing.assert_allclose(values, expected[name], atol=1e-5, err_msg=name)
+
+
+def test_a_frame_with_a_missing_image_fails_alone_and_resume_does_the_rest(sequence, capsys):
+    from polarbssrdf.inverse.result import read_result
+
+    root, capture, static, _ = sequence
+    broken = root / "broken_capture"
+    shutil.copytree(capture, broken)
+    victim = sorted((broken / "images" / "f0003").iterdir())[0]
+    victim.unlink()
+    outdir = root / "broken"
+    shutil.copytree(static, outdir)
+    data = json.loads((outdir / "result.json").read_text())
+    data["capture"] = str(broken.resolve())  # the same static result, now for the broken copy
+    (outdir / "result.json").write_text(json.dumps(data))
+    capsys.readouterr()
+    code = _cli("reconstruct", broken, outdir, "--stages", "dynamic", "--iterations", ITERATIONS,
+                "--quiet")
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "frame 3 failed" in err and victim.name in err
+    frames = sorted(r["frame"] for r in read_result(outdir).maps if r["stage"] == "dynamic")
+    assert frames == [1, 2, 4]
+    # the image comes back: a rerun does frame 3 only
+    shutil.copy(capture / "images" / "f0003" / victim.name, victim)
+    before = {t: (outdir / "dynamic" / f"maps_f{t:04d}.exr").stat().st_mtime_ns for t in frames}
+    assert _cli("reconstruct", broken, outdir, "--stages", "dynamic", "--iterations", ITERATIONS,
+                "--resume", "--quiet") == 0
+    assert sorted(r["frame"] for r in read_result(outdir).maps if r["stage"] == "dynamic") == [1, 2, 3, 4]
+    for t, stamp in before.items():
+        assert (outdir / "dynamic" / f"maps_f{t:04d}.exr").stat().st_mtime_ns == stamp
+
+
+def test_the_dynamic_stage_without_a_static_result_says_to_run_it(sequence, capsys):
+    root, capture, _, _ = sequence
+    code = _cli("reconstruct", capture, root / "nothing", "--stages", "dynamic", "--quiet")
+    assert code != 0
+    assert "static" in capsys.readouterr().err
