@@ -80,7 +80,7 @@ def register(subparsers) -> None:
                              f"size if it has ground truth, else {DEFAULT_TEXTURE})")
     parser.add_argument("--iterations", type=_integer_at_least(0), default=None, metavar="N",
                         help="epochs of the static stage and of each dynamic frame (default: "
-                             f"the config's, {StaticConfig.iterations} and 50 unless --config "
+                             f"the config's, {StaticConfig.iterations} and 30 unless --config "
                              "sets them)")
     parser.add_argument("--config", type=Path, default=None, metavar="FILE.json",
                         help=f"JSON object overriding any StaticConfig key ({DOC}; default: "

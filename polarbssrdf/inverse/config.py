@@ -129,7 +129,7 @@ class StaticConfig:
         Use ``L_psi`` and ``L_phi``; ``False`` is the ablation without them.
     dynamic : dict
         Settings of the dynamic stage: ``iterations`` (epochs per frame,
-        default 50) and ``weights`` (keys of
+        default 30) and ``weights`` (keys of
         :data:`polarbssrdf.inverse.dynamic.DYNAMIC_WEIGHTS`, eq. 36-39).
     bio : dict
         Settings of the biophysical stage: any key of

@@ -7,8 +7,8 @@ static stage's own observations, model, losses and optimizer
 (:mod:`polarbssrdf.inverse.static`): ``L_sss``, ``L_s`` and ``L_phi`` with
 weights 1, 1, 0.2 (no ``L_psi``: the index is fixed), ``H^t`` regularized as
 in eq. 33-34 with 0.001 and 500, and the albedos pulled toward the static
-maps (eq. 38-39, 0.01 each; the subsurface pull weighted per texel by the
-change of the albedo's intensity, :func:`polarbssrdf.inverse.optimize._temporal_albedo_term`).
+maps (eq. 38-39; weights and the subsurface pull's robust weighting in
+:data:`DYNAMIC_WEIGHTS` and :func:`polarbssrdf.inverse.optimize._temporal_albedo_term`).
 Each frame starts from the static maps (displacement included).
 
 A frame is :func:`fit_frame`, a pure function of (the static result on disk,
@@ -35,8 +35,8 @@ HELD = ("eta", "alpha_s", "alpha_ss")
 DYNAMIC_WEIGHTS = {"sss": 1.0, "s": 1.0, "phi": 0.2, "psi": 0.0,
                    "H_magnitude": 0.001, "H_laplacian": 500.0,
                    "alpha_s_smoothness": 0.0, "alpha_ss_smoothness": 0.0, "eta_smoothness": 0.0,
-                   "rho_s_temporal": 100.0, "rho_ss_temporal": 100.0, "rho_sss_temporal": 0.01}
-"""Weights of eq. 36-39: the paper's, except the pulls of ``rho_s`` and ``rho_ss``.
+                   "rho_s_temporal": 100.0, "rho_ss_temporal": 100.0, "rho_sss_temporal": 1e5}
+"""Weights of eq. 36-39: the paper's, except the pulls toward the static albedos.
 
 The paper's 0.01 weigh plain sums of squared image residuals; here the data
 terms are chi-squares per texel-view (``losses``), against which 0.01 does
@@ -44,15 +44,19 @@ nothing: on a raw 5-frame face (64^2, 6 views) the frame-to-frame spread of
 ``rho_s`` in a region without flush was 1.86% with 0.01 and 1.86% with 0;
 100 gives 0.25% (1000: 0.04%), with the cheek flush tracked alike (change
 -0.01071 for a truth of -0.01055 at every weight). ``rho_sss_temporal``
-keeps 0.01: eq. 39 weighs it by the change of the albedo's intensity, which
-is largest where hemoglobin changes, so a strong weight would hold back the
-very flush the stage is there to see."""
+acts through a robust weight instead of eq. 39's (see
+:func:`polarbssrdf.inverse.optimize._temporal_albedo_term`): on the same face
+the spread of ``rho_sss`` without flush was 0.132% with no pull, 0.119% with
+1e4 and 0.052% with 1e5, the cheeks' change -0.01068 and -0.01040 for the
+truth's -0.01055. With eq. 39's own weight, 1e6 held back 14% of the flush
+and left the spread at 0.132%."""
 
 
-DEFAULT_ITERATIONS = 50
-"""Epochs per frame. A frame starts from the static maps, which are close: 30 epochs tracked a
-cheek flush within 2% of its change (tests/inverse/test_dynamic.py); the static stage's 150
-would triple the time per frame."""
+DEFAULT_ITERATIONS = 30
+"""Epochs per frame. A frame starts from the static maps, which are close: 30 epochs track a
+raw face's cheek flush within 2% of its change with normals within 2 degrees
+(tests/inverse/test_dynamic.py). At 256^2 with 6 views and 6 bands a frame took 22.7 s with 50
+epochs (bench/RESULTS.md); the static stage's 150 would be 60 s."""
 
 
 def parse_dynamic(overrides, default_iterations=None):

@@ -109,9 +109,8 @@ def test_temporal_regularization_steadies_a_region_without_flush(sequence):
     with_terms = _frame_to_frame_spread(serial, steady)
     without = _frame_to_frame_spread(free, steady)
     print("frame-to-frame spread (rho_s, rho_sss) with eq. 38-39:", with_terms, "without:", without)
-    assert with_terms[0] < 0.5 * without[0]  # the sensor noise makes rho_s flicker without them
-    # eq. 39 pulls only where the albedo's intensity changes (DYNAMIC_WEIGHTS): no worse
-    assert with_terms[1] <= 1.02 * without[1]
+    assert with_terms[0] < 0.5 * without[0]  # the sensor noise makes them flicker without
+    assert with_terms[1] < 0.7 * without[1]
     assert max(with_terms) < 0.01
 
 
