@@ -169,14 +169,17 @@ def test_a_worker_killed_mid_frame_costs_nothing(sequence):
             np.testing.assert_allclose(values, expected[name], atol=1e-5, err_msg=name)
 
 
-def test_a_frame_with_a_missing_image_fails_alone_and_resume_does_the_rest(sequence, capsys):
+def test_frames_with_a_missing_or_corrupt_image_fail_alone_and_resume_does_the_rest(sequence,
+                                                                                   capsys):
     from polarbssrdf.inverse.result import read_result
 
     root, capture, static, _ = sequence
     broken = root / "broken_capture"
     shutil.copytree(capture, broken)
-    victim = sorted((broken / "images" / "f0003").iterdir())[0]
-    victim.unlink()
+    missing = sorted((broken / "images" / "f0003").iterdir())[0]
+    missing.unlink()
+    corrupt = sorted((broken / "images" / "f0002").iterdir())[1]
+    corrupt.write_bytes(b"not an EXR file")
     outdir = root / "broken"
     shutil.copytree(static, outdir)
     data = json.loads((outdir / "result.json").read_text())
@@ -187,11 +190,13 @@ def test_a_frame_with_a_missing_image_fails_alone_and_resume_does_the_rest(seque
                 "--quiet")
     err = capsys.readouterr().err
     assert code == 1
-    assert "frame 3 failed" in err and victim.name in err
+    assert "frame 3 failed" in err and missing.name in err
+    assert "frame 2 failed" in err and corrupt.name in err
     frames = sorted(r["frame"] for r in read_result(outdir).maps if r["stage"] == "dynamic")
-    assert frames == [1, 2, 4]
-    # the image comes back: a rerun does frame 3 only
-    shutil.copy(capture / "images" / "f0003" / victim.name, victim)
+    assert frames == [1, 4]
+    # the images come back: a rerun does frames 2 and 3 only
+    for path in (missing, corrupt):
+        shutil.copy(capture / "images" / path.parent.name / path.name, path)
     before = {t: (outdir / "dynamic" / f"maps_f{t:04d}.exr").stat().st_mtime_ns for t in frames}
     assert _cli("reconstruct", broken, outdir, "--stages", "dynamic", "--iterations", ITERATIONS,
                 "--resume", "--quiet") == 0
