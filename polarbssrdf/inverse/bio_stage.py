@@ -169,51 +169,117 @@ def write_bio_previews(channels, directory, frame):
     return write_map_previews(shown, directory, f"f{frame:04d}", units=UNITS)
 
 
-def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False, progress=True):
-    """Fit every source frame of ``outdir`` and write the stage's files; returns a summary dict."""
-    from tqdm import tqdm
+_ATLASES = {}
 
+
+def _atlas(capture, texture_size):
+    """The texel atlas of the capture's mesh (kept per process: frames share it)."""
     from polarbssrdf.geometry import texel_atlas, to_mitsuba
-    from polarbssrdf.inverse.result import read_stage_maps, stage_map_path, write_stage_maps
+
+    key = (str(capture.directory), int(texture_size))
+    if key not in _ATLASES:
+        _ATLASES.clear()
+        _ATLASES[key] = texel_atlas(to_mitsuba(capture.load_mesh()), texture_size)
+    return _ATLASES[key]
+
+
+def write_frame(capture, outdir, frame, source, texture_size, settings, reference=None):
+    """Fit one frame and write its map file (not registered) and previews; returns its channels.
+
+    A pure function of (the capture's bands and mesh, ``outdir``'s ``source``
+    maps of ``frame``, ``reference``: the first frame's biophysical maps or
+    None), so later frames can run on Dask workers.
+    """
+    from polarbssrdf.inverse.result import read_stage_maps, stage_map_path
+    from polarbssrdf.io.exr import write_exr
+
+    config, free_melanin = bio_config(settings)
+    bands = list(capture.manifest.bands)
+    inputs = albedo_inputs(read_stage_maps(outdir, source, frame), bands)
+    try:
+        result = fit_frame(inputs, bands, _atlas(capture, texture_size), config, reference,
+                           free_melanin)
+    except ValueError as error:
+        raise ValueError(f"bio, frame {frame} ({source} maps): {error}") from None
+    channels = result.channels()
+    path = Path(outdir) / stage_map_path(STAGE, frame)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_exr(path, channels, overwrite=True,
+              metadata={"stage": STAGE, "frame": int(frame), "source_stage": source,
+                        "history": result.history, "seconds": round(result.seconds, 3),
+                        "held": [] if reference is None or free_melanin else ["C_m", "beta_m"]})
+    write_bio_previews(channels, Path(outdir) / STAGE / "previews", frame)
+    return channels
+
+
+class BioFrameTask:
+    """:func:`write_frame` for a later frame with everything but the frame bound (picklable)."""
+
+    def __init__(self, capture_dir, outdir, texture_size, settings, sources, variant, threads):
+        self.capture_dir, self.outdir = str(capture_dir), str(outdir)
+        self.texture_size, self.settings, self.sources = int(texture_size), settings, sources
+        self.variant, self.threads = variant, threads
+
+    def __call__(self, frame):
+        import drjit as dr
+
+        from polarbssrdf.inverse.commands import select_variant
+        from polarbssrdf.inverse.result import read_stage_maps
+        from polarbssrdf.io import load_capture
+
+        started = time.perf_counter()
+        select_variant(self.variant)
+        if self.threads is not None:
+            dr.set_thread_count(int(self.threads))
+        capture = load_capture(self.capture_dir, check_images=False, frames=[])
+        first = read_stage_maps(self.outdir, STAGE, next(iter(self.sources)))
+        write_frame(capture, self.outdir, frame, self.sources[frame], self.texture_size,
+                    self.settings, {name: first[name] for name in PARAMETERS})
+        return {"frame": int(frame), "seconds": round(time.perf_counter() - started, 3)}
+
+
+def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False, progress=True,
+                  workers=None, scheduler=None, variant="llvm_ad_mono_polarized"):
+    """Fit every source frame of ``outdir``, register the maps, write the summary.
+
+    The first frame (the static one) runs here; the others start from it and
+    run serially, or on Dask with ``workers`` / ``scheduler``
+    (:mod:`polarbssrdf.inverse.frames`). Frames whose file exists are skipped
+    when ``resume``. Returns the summary dict, with ``failed``: ``{frame: reason}``.
+    """
+    from polarbssrdf.inverse.frames import run_frames
+    from polarbssrdf.inverse.result import register_map, stage_map_path
     from polarbssrdf.io.atomic import atomic_write_text
     from polarbssrdf.io.exr import read_exr
 
     outdir = Path(outdir)
-    config, free_melanin = bio_config(settings)
+    bio_config(settings)  # a bad config's error before any work
     sources = source_frames(outdir)
     frames = list(sources)
-    bands = list(capture.manifest.bands)
-    mesh = capture.load_mesh()
-    atlas = texel_atlas(to_mitsuba(mesh), texture_size)
     started = time.perf_counter()
+    first = frames[0]
+    path = outdir / stage_map_path(STAGE, first)
+    if not (resume and path.is_file()):
+        write_frame(capture, outdir, first, sources[first], texture_size, settings)
+    register_map(outdir, STAGE, first, read_exr(path)[0])
+    later = [t for t in frames[1:]
+             if not (resume and (outdir / stage_map_path(STAGE, t)).is_file())]
+    task = BioFrameTask(capture.directory, outdir, texture_size, settings, sources, variant,
+                        1 if (workers or scheduler) else None)
+    _, failures = run_frames(task, later, workers=workers, scheduler=scheduler,
+                             progress=progress, description=STAGE)
     fitted = {}
-    reference = None
-    with tqdm(total=len(frames), desc=STAGE, unit="frame", disable=not progress) as bar:
-        for frame in frames:
-            path = outdir / stage_map_path(STAGE, frame)
-            if resume and path.is_file():
-                fitted[frame], _ = read_exr(path)
-            else:
-                source = sources[frame]
-                inputs = albedo_inputs(read_stage_maps(outdir, source, frame), bands)
-                try:
-                    result = fit_frame(inputs, bands, atlas, config, reference, free_melanin)
-                except ValueError as error:
-                    raise ValueError(f"bio, frame {frame} ({source} maps): {error}") from None
-                channels = result.channels()
-                write_stage_maps(outdir, STAGE, frame, channels,
-                                 {"source_stage": source, "history": result.history,
-                                  "seconds": round(result.seconds, 3),
-                                  "held": [] if reference is None or free_melanin
-                                  else ["C_m", "beta_m"]})
-                write_bio_previews(channels, outdir / STAGE / "previews", frame)
-                fitted[frame] = channels
-            if reference is None:
-                reference = {name: fitted[frame][name] for name in PARAMETERS}
-            bar.update()
-    summary = region_summary(fitted, region_masks(capture, mesh, atlas))
-    summary.update(source_stages={str(f): stage for f, stage in sources.items()}, frames=frames,
+    for frame in frames:
+        path = outdir / stage_map_path(STAGE, frame)
+        if frame in failures or not path.is_file():
+            continue
+        fitted[frame], _ = read_exr(path)
+        register_map(outdir, STAGE, frame, fitted[frame])
+    atlas = _atlas(capture, texture_size)
+    summary = region_summary(fitted, region_masks(capture, capture.load_mesh(), atlas))
+    summary.update(source_stages={str(f): sources[f] for f in fitted}, frames=sorted(fitted),
                    seconds=round(time.perf_counter() - started, 3))
     atomic_write_text(outdir / STAGE / SUMMARY_FILE, json.dumps(summary, indent=1) + "\n",
                       overwrite=True)
+    summary["failed"] = failures
     return summary

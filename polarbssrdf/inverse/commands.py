@@ -102,11 +102,11 @@ def register(subparsers) -> None:
                              "(default: %(default)s)")
     cluster = parser.add_mutually_exclusive_group()
     cluster.add_argument("--workers", type=_integer_at_least(1), default=None, metavar="N",
-                         help="run the dynamic stage's frames on a local Dask cluster of N "
-                              "single-threaded worker processes (default: one after another "
-                              "in this process)")
+                         help="run the dynamic and biophysical stages' frames on a local Dask "
+                              "cluster of N single-threaded worker processes (default: one "
+                              "after another in this process)")
     cluster.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                         help="run the dynamic stage's frames on an existing Dask cluster, e.g. "
+                         help="run those frames on an existing Dask cluster, e.g. "
                               "tcp://10.0.0.1:8786 (its workers must see CAPTURE and OUTDIR at "
                               "the same paths)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -382,7 +382,10 @@ def run_reconstruct(args) -> int:
 
             stage_start = time.perf_counter()
             summary = run_bio_stage(capture, outdir, texture, config.bio,
-                                    resume=args.resume or continuing, progress=progress)
+                                    resume=args.resume or continuing, progress=progress,
+                                    workers=args.workers, scheduler=args.scheduler,
+                                    variant=args.variant)
+            failed.update({frame: f"bio: {reason}" for frame, reason in summary["failed"].items()})
             kinds = sorted(set(summary["source_stages"].values()))
             lines.append(f"  bio: {len(summary['frames'])} frame(s) from the "
                          f"{' and '.join(kinds)} maps -> {outdir / 'bio'} (maps, previews, "

@@ -210,3 +210,32 @@ def test_the_dynamic_stage_without_a_static_result_says_to_run_it(sequence, caps
     code = _cli("reconstruct", capture, root / "nothing", "--stages", "dynamic", "--quiet")
     assert code != 0
     assert "static" in capsys.readouterr().err
+
+
+def test_biophysical_frames_on_workers_equal_serial_ones_and_see_the_flush(sequence):
+    from polarbssrdf.inverse.bio_stage import run_bio_stage
+    from polarbssrdf.inverse.commands import select_variant
+    from polarbssrdf.inverse.result import read_stage_maps
+    from polarbssrdf.io import load_capture
+
+    root, capture, _, serial = sequence
+    select_variant("llvm_ad_mono_polarized")
+    loaded = load_capture(capture, check_images=False)
+    settings = {"iterations": 4, "rounds": 1}
+    runs = {}
+    for name, workers in (("bio_serial", None), ("bio_workers", 2)):
+        outdir = root / name
+        shutil.copytree(serial, outdir)
+        summary = run_bio_stage(loaded, outdir, T, settings, progress=False, workers=workers)
+        assert summary["frames"] == list(range(FRAMES)) and not summary["failed"]
+        runs[name] = outdir
+    cheeks, _ = _regions(serial)
+    first = read_stage_maps(runs["bio_serial"], "bio", 0)
+    hemoglobin = []
+    for frame in range(FRAMES):
+        expected = read_stage_maps(runs["bio_serial"], "bio", frame)
+        for name, values in read_stage_maps(runs["bio_workers"], "bio", frame).items():
+            np.testing.assert_allclose(values, expected[name], atol=1e-5, err_msg=name)
+        np.testing.assert_array_equal(expected["C_m"][cheeks], first["C_m"][cheeks])
+        hemoglobin.append(float(expected["C_h_out"][cheeks].mean()))
+    assert all(b > a for a, b in zip(hemoglobin, hemoglobin[1:]))  # the flush rises every frame
