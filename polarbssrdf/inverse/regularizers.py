@@ -107,7 +107,6 @@ def displacement_laplacian(height, stencils):
 
 def neighbourhood_smoothness(values, stencils):
     """``mean((p - p_bar)^2)``, ``p_bar`` the mean of the valid 5 x 5 neighbours (eq. 35)."""
-    Float = type(values)
     p = _gather(values, stencils.interior)
     mean = sum(weight * _gather(values, index)
                for index, weight in zip(stencils.box_index, stencils.box_weight))

@@ -9,7 +9,6 @@ import threading
 import numpy as np
 import pytest
 
-import mitsuba as mi
 
 T = 64
 FRAMES = 5
