@@ -171,6 +171,48 @@ def evaluate_maps(maps, truth, atlas, band_names, units=None):
     return scores, scored
 
 
+def biophysical_scores(maps, truth, valid):
+    """MAE of ``C_m, beta_m, C_h_out, C_h_in`` as fractions of their Table 2 ranges, beside the
+    best constant map's, over ``valid`` texels that are not flagged and have finite truth."""
+    from polarbssrdf.inverse.biophysical_model import PARAMETERS
+    from polarbssrdf.skin.parameters import table2_ranges
+
+    missing = [n for n in PARAMETERS if n not in maps or n not in truth]
+    if missing:
+        raise ValueError(f"cannot evaluate: channels missing: {', '.join(missing)}")
+    scored = np.asarray(valid, bool) & (np.asarray(maps.get("flagged", 0.0)) == 0)
+    for name in PARAMETERS:
+        scored &= np.isfinite(truth[name])
+    ranges = table2_ranges()
+    scores = {}
+    for name in PARAMETERS:
+        span = ranges[name][1] - ranges[name][0]
+        t = np.asarray(truth[name], np.float64)[scored]
+        r = np.asarray(maps[name], np.float64)[scored]
+        scores[name] = {"mae": float(np.mean(np.abs(r - t))),
+                        "mae_of_range": float(np.mean(np.abs(r - t)) / span),
+                        "constant_mae_of_range": float(np.mean(np.abs(t - t.mean())) / span),
+                        "table2_range": [float(v) for v in ranges[name]], "unit": "1"}
+    return scores, scored
+
+
+def _evaluate_biophysical(outdir, capture, frame, maps, truth, manifest):
+    from polarbssrdf.geometry import texel_atlas, to_mitsuba
+
+    _ensure_jit_variant(None)
+    atlas = texel_atlas(to_mitsuba(capture.load_mesh()), manifest.texture_size)
+    scores, scored = biophysical_scores(maps, truth, atlas.valid)
+    return {
+        "schema": EVALUATION_SCHEMA, "schema_version": EVALUATION_SCHEMA_VERSION,
+        "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "result": str(Path(outdir).resolve()), "capture": str(Path(capture.directory).resolve()),
+        "stage": "bio", "frame": int(frame), "texture_size": int(manifest.texture_size),
+        "texels_scored": int(scored.sum()),
+        "scored_texels": "on the mesh, not flagged, finite truth",
+        "maps": scores, "holdout": None,
+    }
+
+
 def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=True,
                     spp=None, variant=None) -> dict:
     """Score a result directory's maps of ``stage``/``frame`` against a capture's truth.
@@ -184,7 +226,8 @@ def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=Tr
     frame : int
         The frame whose maps are scored.
     stage : str
-        The stage whose maps are scored (``static``).
+        The stage whose maps are scored: ``static``, ``dynamic`` (the same
+        scores) or ``bio`` (:func:`biophysical_scores`, no re-renders).
     holdout : bool
         Re-render the run's held-out cameras (``settings.holdout``) and add
         their errors under ``"holdout"``.
@@ -215,6 +258,8 @@ def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=Tr
     maps = read_stage_maps(outdir, stage, int(frame))
     capture = truth_capture(outdir, capture)
     truth = _truth_maps(capture, frame)
+    if stage == "bio":
+        return _evaluate_biophysical(outdir, capture, frame, maps, truth, manifest)
     truth_size = capture.truth.texture_size
     if manifest.texture_size != truth_size:
         raise ValueError(f"texture size mismatch: the result {outdir} is {manifest.texture_size} x "

@@ -199,3 +199,41 @@ def test_the_forehead_summary_of_a_table2_face_recovers_that_row():
         truth = float(maps[name][masks["forehead"]].mean())
         assert forehead[name]["mean"] == pytest.approx(truth, rel=0.03), name
     assert abs(forehead["beta_m"]["mean"] - row.beta_m) < 0.05
+
+
+def test_evaluate_scores_biophysical_maps_in_table2_ranges(small_capture):
+    """``evaluate --stage bio``: maps equal to the truth score 0, the truth's mean scores the
+    constant-map baseline."""
+    from polarbssrdf.inverse.evaluate import evaluate_result
+    from polarbssrdf.inverse.result import prepare_result_directory, write_stage_maps
+    from polarbssrdf.io.exr import read_exr
+    from polarbssrdf.skin.parameters import table2_ranges
+
+    root, capture = small_capture
+    outdir = root / "scored"
+    truth, _ = read_exr(capture / "truth" / "maps_f0000.exr")
+    prepare_result_directory(outdir, capture, truth["C_m"].shape[0], {"stages": ["bio"]})
+    exact = {name: truth[name] for name in PARAMETERS}
+    exact["flagged"] = np.zeros_like(truth["C_m"])
+    write_stage_maps(outdir, "bio", 0, exact)
+    report = evaluate_result(outdir, stage="bio")
+    assert report["texels_scored"] > 100
+    for name in PARAMETERS:
+        assert report["maps"][name]["mae_of_range"] == pytest.approx(0.0, abs=1e-7)
+    from polarbssrdf.geometry import texel_atlas, to_mitsuba
+    from polarbssrdf.io import load_capture
+
+    surface = texel_atlas(to_mitsuba(load_capture(capture, check_images=False).load_mesh()),
+                          truth["C_m"].shape[0]).valid
+    # the truth's mean over the surface: the best constant map's level
+    mean = {name: np.full_like(truth[name], float(np.mean(truth[name][surface])))
+            for name in PARAMETERS}
+    ranges = table2_ranges()
+    constant = evaluate_result(outdir, stage="bio")["maps"]
+    write_stage_maps(outdir, "bio", 0, {**mean, "flagged": exact["flagged"]})
+    scored = evaluate_result(outdir, stage="bio")["maps"]
+    for name in PARAMETERS:
+        assert scored[name]["mae_of_range"] > 0
+        assert scored[name]["mae_of_range"] == pytest.approx(
+            constant[name]["constant_mae_of_range"], rel=1e-4)
+        assert scored[name]["table2_range"] == list(ranges[name])
