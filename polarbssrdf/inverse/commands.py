@@ -329,8 +329,14 @@ def run_reconstruct(args) -> int:
     if outdir.exists() and not outdir.is_dir():
         raise CommandError(f"output directory '{outdir}' exists and is not a directory")
     settings = run_settings(stages, config, holdout, args.frame)
+    if args.overwrite and stages[0] != STAGES[0]:
+        # --overwrite removes the static maps, which these stages would then read
+        raise CommandError(f"--overwrite with --stages {','.join(stages)} would remove the "
+                           "static maps those stages read; include 'static' in --stages to "
+                           "start over, or drop --overwrite to add to the run in "
+                           f"'{outdir}'")
     # later stages on an earlier run read its maps and add their own (no --resume needed)
-    continuing = stages[0] != STAGES[0] and not args.overwrite
+    continuing = stages[0] != STAGES[0]
     if args.resume and not continuing and outdir.is_dir() and any(outdir.iterdir()):
         differences = resume_differences(outdir, capture.directory, texture, settings)
         if differences:

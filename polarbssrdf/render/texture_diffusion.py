@@ -183,17 +183,25 @@ def _stage(axis, gaussian_passes):
     return out
 
 
+def _prepare_terms(values, terms, geometry):
+    """What the forward blur and its adjoint share: the valid-masked input (evaluated), the
+    Gaussian terms, the identity weight, and each Gaussian's pass along u and along v."""
+    import drjit as dr
+
+    masked = values * geometry.valid
+    dr.eval(masked)
+    gaussians = [(w, v) for w, v in terms if v is not None]
+    identity = sum(w for w, v in terms if v is None)
+    passes = [geometry.passes(v) for _, v in gaussians]
+    return masked, gaussians, identity, _stage(1, passes), _stage(0, passes)
+
+
 def _sum_of_gaussians(values, terms, geometry):
     """Forward ``sum_j w_j V_j U_j x`` (+ identity term) on a flat array: two fused kernels."""
     import drjit as dr
 
     valid = geometry.valid
-    masked = values * valid
-    dr.eval(masked)
-    gaussians = [(w, v) for w, v in terms if v is not None]
-    identity = sum(w for w, v in terms if v is None)
-    passes = [geometry.passes(v) for _, v in gaussians]
-    along_u, along_v = _stage(1, passes), _stage(0, passes)
+    masked, gaussians, identity, along_u, along_v = _prepare_terms(values, terms, geometry)
     # u passes of every Gaussian: one kernel
     active = [j for j, p in enumerate(along_u) if p is not None]
     stage_u = [masked] * len(gaussians)
@@ -226,12 +234,7 @@ def _sum_of_gaussians_adjoint(grad, terms, geometry):
     import drjit as dr
 
     valid = geometry.valid
-    masked = grad * valid
-    dr.eval(masked)
-    gaussians = [(w, v) for w, v in terms if v is not None]
-    identity = sum(w for w, v in terms if v is None)
-    passes = [geometry.passes(v) for _, v in gaussians]
-    along_u, along_v = _stage(1, passes), _stage(0, passes)
+    masked, gaussians, identity, along_u, along_v = _prepare_terms(grad, terms, geometry)
     # transpose of the v passes
     scaled = [masked * float(w) * (along_v[j][1] if along_v[j] is not None else 1.0)
               for j, (w, _) in enumerate(gaussians)]
@@ -247,7 +250,8 @@ def _sum_of_gaussians_adjoint(grad, terms, geometry):
     for j in range(len(gaussians)):
         if along_u[j] is not None:
             stage_v[j] = stage_v[j] * along_u[j][1]
-    dr.eval(*stage_v) if stage_v else None
+    if stage_v:
+        dr.eval(*stage_v)
     result = masked * float(identity) if identity else dr.zeros(type(grad), len(grad))
     active = [j for j, p in enumerate(along_u) if p is not None]
     sums = _tap_sums([stage_v[j] for j in active], [gaussians[j][1] for j in active],

@@ -237,3 +237,22 @@ def test_evaluate_scores_biophysical_maps_in_table2_ranges(small_capture):
         assert scored[name]["mae_of_range"] == pytest.approx(
             constant[name]["constant_mae_of_range"], rel=1e-4)
         assert scored[name]["table2_range"] == list(ranges[name])
+
+
+def test_overwrite_with_only_later_stages_is_refused_and_keeps_the_run(small_capture, capsys):
+    """``--overwrite --stages bio`` would remove the static maps bio reads: an error, nothing lost."""
+    import shutil
+
+    from polarbssrdf.cli import main
+
+    root, capture = small_capture
+    outdir = root / "keep"
+    assert main(["reconstruct", str(capture), str(outdir), "--stages", "static",
+                 "--iterations", "1", "--quiet"]) == 0
+    before = sorted(p.relative_to(outdir) for p in outdir.rglob("*"))
+    capsys.readouterr()
+    assert main(["reconstruct", str(capture), str(outdir), "--stages", "bio", "--overwrite",
+                 "--quiet"]) == 2
+    assert "would remove the static maps" in capsys.readouterr().err
+    assert sorted(p.relative_to(outdir) for p in outdir.rglob("*")) == before
+    shutil.rmtree(outdir)

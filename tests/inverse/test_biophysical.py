@@ -257,3 +257,19 @@ def test_with_one_percent_noise_the_fit_beats_the_per_texel_inversion():
         assert errors[name]["fit"] < 0.5 * errors[name]["constant"], name
     assert errors["beta_m"]["fit"] < 0.5 * errors["beta_m"]["per_texel"]
     assert errors["C_h_in"]["fit"] < 0.5 * errors["C_h_in"]["per_texel"]
+
+
+def test_the_adam_method_lowers_the_loss_and_keeps_the_bounds(face):
+    from polarbssrdf.inverse.biophysical import BiophysicalConfig, fit_biophysical
+
+    atlas, _, bands, _, inputs = face
+    config = BiophysicalConfig(method="adam", iterations=5, rounds=1, start_texel_mm=0.0)
+    result = fit_biophysical(inputs, bands, atlas, config)
+    history = result.history[0]
+    assert history["loss_end"] < history["loss_start"]
+    for name in PARAMETERS:
+        low, high = config.bounds[name]
+        values = result.maps[name][atlas.valid]
+        assert values.min() >= low - 1e-7 and values.max() <= high + 1e-7, name
+    with pytest.raises(ValueError, match="method"):
+        BiophysicalConfig(method="newton")

@@ -149,20 +149,33 @@ def test_serial_local_workers_and_a_scheduler_give_the_same_maps(sequence):
 
 
 def test_a_worker_killed_mid_frame_costs_nothing(sequence):
+    import time
+
     from dask.distributed import Client, LocalCluster
 
     _, _, _, serial = sequence
+    killed = []
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster, Client(cluster) as client:
-        client.run(lambda: None)  # both workers up
-        pids = list(client.run(os.getpid).values())
-        killer = threading.Timer(2.5, lambda: os.kill(pids[0], signal.SIGKILL))
+        pids = client.run(os.getpid)  # worker address -> process id
+
+        def kill_a_busy_worker():
+            # wait until a worker is inside a frame, then kill that worker's process
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline and not killed:
+                busy = [address for address, keys in client.processing().items() if keys]
+                if busy:
+                    time.sleep(1.0)  # well into the frame
+                    os.kill(pids[busy[0]], signal.SIGKILL)
+                    killed.append(busy[0])
+                time.sleep(0.05)
+
+        killer = threading.Thread(target=kill_a_busy_worker, daemon=True)
         killer.start()
-        try:
-            outdir, report = _dynamic_copy(sequence, "killed", scheduler=cluster.scheduler_address,
-                                           frames=[1, 2, 3])
-        finally:
-            killer.cancel()
+        outdir, report = _dynamic_copy(sequence, "killed", scheduler=cluster.scheduler_address,
+                                       frames=[1, 2, 3])
+        killer.join(timeout=5)
+    assert killed, "no worker was busy with a frame: the fault was not injected"
     assert report["done"] == [1, 2, 3] and not report["failed"]
     for frame in (1, 2, 3):
         expected = _maps(serial, frame)
