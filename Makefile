@@ -10,7 +10,7 @@ $(VENV)/.installed: pyproject.toml tools/setup.sh
 	bash tools/setup.sh
 
 demo: setup
-	$(BIN)/polarbssrdf render scenes/sphere.xml out/ --overwrite
+	$(BIN)/polarbssrdf demo out/demo --overwrite
 
 test: setup
 	$(BIN)/python -m pytest -q

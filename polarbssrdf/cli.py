@@ -20,6 +20,8 @@ COMMAND_MODULES = (
     "polarbssrdf.synth.commands",
     "polarbssrdf.calibration.commands",
     "polarbssrdf.inverse.commands",
+    "polarbssrdf.report",
+    "polarbssrdf.demo",
 )
 
 EXIT_USER_ERROR = 2

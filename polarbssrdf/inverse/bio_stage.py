@@ -239,16 +239,19 @@ class BioFrameTask:
 
 
 def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False, progress=True,
-                  workers=None, scheduler=None, variant="llvm_ad_mono_polarized"):
+                  workers=None, scheduler=None, variant="llvm_ad_mono_polarized", label=STAGE):
     """Fit every source frame of ``outdir``, register the maps, write the summary.
 
     The first frame (the static one) runs here; the others start from it and
     run serially, or on Dask with ``workers`` / ``scheduler``
     (:mod:`polarbssrdf.inverse.frames`). Frames whose file exists are skipped
-    when ``resume``. Returns the summary dict, with ``failed``: ``{frame: reason}``.
+    when ``resume``; ``label`` names the stage on the progress bar. The loss history
+    of every frame goes to ``OUTDIR/metrics.json`` under ``bio``. Returns the summary
+    dict, with ``failed``: ``{frame: reason}``.
     """
     from polarbssrdf.inverse.frames import run_frames
     from polarbssrdf.inverse.result import register_map, stage_map_path
+    from polarbssrdf.inverse.static import write_metrics
     from polarbssrdf.io.atomic import atomic_write_text
     from polarbssrdf.io.exr import read_exr
 
@@ -267,14 +270,16 @@ def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False,
     task = BioFrameTask(capture.directory, outdir, texture_size, settings, sources, variant,
                         1 if (workers or scheduler) else None)
     _, failures = run_frames(task, later, workers=workers, scheduler=scheduler,
-                             progress=progress, description=STAGE)
-    fitted = {}
+                             progress=progress, description=label)
+    fitted, histories = {}, {}
     for frame in frames:
         path = outdir / stage_map_path(STAGE, frame)
         if frame in failures or not path.is_file():
             continue
-        fitted[frame], _ = read_exr(path)
+        fitted[frame], metadata = read_exr(path)
         register_map(outdir, STAGE, frame, fitted[frame])
+        histories[str(frame)] = (metadata or {}).get("history", [])
+    write_metrics(outdir, STAGE, histories)
     atlas = _atlas(capture, texture_size)
     summary = region_summary(fitted, region_masks(capture, capture.load_mesh(), atlas))
     summary.update(source_stages={str(f): sources[f] for f in fitted}, frames=sorted(fitted),

@@ -28,6 +28,16 @@ DEFAULT_TEXTURE = 512
 
 DOC = "docs/reconstruct.md"
 
+STAGE_TITLES = {
+    "static": "polarimetric inverse rendering of the static frame (eq. 26-35)",
+    "dynamic": "every other frame, from the static maps (eq. 36-39)",
+    "bio": "melanin and hemoglobin per frame (eq. 40-47)",
+}
+"""What each stage does, for its header line on the progress display."""
+
+TIMINGS_FILE = "timings.json"
+"""``OUTDIR/timings.json``: wall seconds of the last run of each stage."""
+
 
 def _integer_at_least(minimum: int):
     """argparse type: an integer >= ``minimum``."""
@@ -295,6 +305,23 @@ def resume_differences(outdir: Path, capture_dir: Path, texture: int, settings: 
     return differences
 
 
+def record_stage_seconds(outdir: Path, seconds: dict) -> None:
+    """Merge ``{stage: wall seconds}`` into ``OUTDIR/timings.json`` (atomically).
+
+    The last run of a stage replaces its entry; a resumed stage records the
+    seconds of the resumed part only.
+    """
+    from polarbssrdf.io.atomic import atomic_write_text
+
+    path = Path(outdir) / TIMINGS_FILE
+    try:
+        timings = json.loads(path.read_text())
+    except (FileNotFoundError, ValueError):
+        timings = {}
+    timings.update({stage: round(float(value), 3) for stage, value in seconds.items()})
+    atomic_write_text(path, json.dumps(timings, indent=1) + "\n", overwrite=True)
+
+
 def _texel_views(path: Path) -> int | None:
     from polarbssrdf.io.exr import read_exr
 
@@ -355,13 +382,19 @@ def run_reconstruct(args) -> int:
     progress = not args.quiet
     lines = []
     failed = {}
-    for stage in stages:
+    seconds_per_stage = {}
+    for number, stage in enumerate(stages, start=1):
+        # one display across stages: each stage's header and bars carry "[i/n] stage"
+        label = f"[{number}/{len(stages)}] {stage}"
+        if progress:
+            print(f"polarbssrdf reconstruct: {label}: {STAGE_TITLES[stage]}", file=sys.stderr,
+                  flush=True)
+        stage_start = time.perf_counter()
         if stage == "static":
             from polarbssrdf.inverse.static import run_static_stage
 
-            stage_start = time.perf_counter()
             result = run_static_stage(capture, outdir, config, texture, frame=args.frame,
-                                      holdout=tuple(holdout), progress=progress)
+                                      holdout=tuple(holdout), progress=progress, label=label)
             views = _texel_views(result.path)
             epochs = len(result.history)
             final = result.history[-1].get("total") if result.history else None
@@ -372,12 +405,11 @@ def run_reconstruct(args) -> int:
         elif stage == "dynamic":
             from polarbssrdf.inverse.dynamic import run_dynamic_stage
 
-            stage_start = time.perf_counter()
             report = run_dynamic_stage(capture, outdir, texture, config, holdout=tuple(holdout),
                                        static_frame=args.frame, workers=args.workers,
                                        scheduler=args.scheduler,
                                        resume=args.resume or continuing, progress=progress,
-                                       variant=args.variant)
+                                       variant=args.variant, label=label)
             failed.update(report["failed"])
             lines.append(f"  dynamic: {len(report['done'])} frame(s) fitted"
                          + (f", {len(report['skipped'])} already done" if report["skipped"] else "")
@@ -386,16 +418,17 @@ def run_reconstruct(args) -> int:
         elif stage == "bio":
             from polarbssrdf.inverse.bio_stage import run_bio_stage
 
-            stage_start = time.perf_counter()
             summary = run_bio_stage(capture, outdir, texture, config.bio,
                                     resume=args.resume or continuing, progress=progress,
                                     workers=args.workers, scheduler=args.scheduler,
-                                    variant=args.variant)
+                                    variant=args.variant, label=label)
             failed.update({frame: f"bio: {reason}" for frame, reason in summary["failed"].items()})
             kinds = sorted(set(summary["source_stages"].values()))
             lines.append(f"  bio: {len(summary['frames'])} frame(s) from the "
                          f"{' and '.join(kinds)} maps -> {outdir / 'bio'} (maps, previews, "
                          f"summary.json; {time.perf_counter() - stage_start:.1f} s)")
+        seconds_per_stage[stage] = time.perf_counter() - stage_start
+        record_stage_seconds(outdir, {stage: seconds_per_stage[stage]})
     seconds = time.perf_counter() - started
     held = f"; held out {', '.join(holdout)}" if holdout else ""
     print(f"polarbssrdf reconstruct: {capture.directory} -> {outdir} ({texture} x {texture} "

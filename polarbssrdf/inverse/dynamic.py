@@ -191,10 +191,11 @@ class FrameTask:
 
 def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), static_frame=0,
                       frames=None, workers=None, scheduler=None, resume=False, progress=True,
-                      variant="llvm_ad_mono_polarized"):
+                      variant="llvm_ad_mono_polarized", label=STAGE):
     """Fit every frame but ``static_frame`` (or ``frames``) and register the finished ones.
 
-    Frames whose map file exists are skipped when ``resume``. Returns
+    Frames whose map file exists are skipped when ``resume``; ``label`` names the stage
+    on the progress bar. Returns
     ``{"done": [frames], "skipped": [frames], "failed": {frame: reason}, "seconds"}``.
     """
     from polarbssrdf.inverse.frames import run_frames
@@ -214,7 +215,7 @@ def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), stat
     task = FrameTask(capture.directory, outdir, texture_size, config.to_json(), holdout, variant,
                      threads)
     records, failures = run_frames(task, todo, workers=workers, scheduler=scheduler,
-                                   progress=progress, description=STAGE)
+                                   progress=progress, description=label)
     from polarbssrdf.io.exr import read_exr
 
     metrics = {}

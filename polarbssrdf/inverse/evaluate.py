@@ -291,3 +291,42 @@ def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=Tr
             capture, maps, cameras, frame, spp=spp or rerender.DEFAULT_SPP,
             variant=variant or rerender.RENDER_VARIANT)
     return report
+
+
+def evaluate_stages(outdir, capture=None, *, holdout=True, spp=None, variant=None,
+                    progress=None) -> dict:
+    """:func:`evaluate_result` of every registered stage and frame that has truth.
+
+    The static frame's held-out views are re-rendered (``holdout``); the
+    dynamic frames are scored on their maps only (the re-render would repeat
+    the static one's comparison per frame at a per-frame cost).
+
+    Returns
+    -------
+    dict
+        ``{"static": evaluation or None, "dynamic": {frame: evaluation},
+        "bio": {frame: evaluation}}`` with frame keys as strings (JSON).
+        ``progress``, if given, is called with ``(stage, frame)`` before each.
+    """
+    from polarbssrdf.inverse.result import read_result
+
+    outdir = Path(outdir)
+    manifest = read_result(outdir)
+    capture = truth_capture(outdir, capture)
+    truth_frames = ({int(r.frame) for r in capture.truth.maps} if capture.truth is not None
+                    else set())
+    scores = {"static": None, "dynamic": {}, "bio": {}}
+    order = {"static": 0, "dynamic": 1, "bio": 2}
+    for record in sorted(manifest.maps, key=lambda r: (order.get(r["stage"], 3), r["frame"])):
+        stage, frame = record["stage"], int(record["frame"])
+        if frame not in truth_frames or stage not in scores:
+            continue
+        if progress is not None:
+            progress(stage, frame)
+        report = evaluate_result(outdir, capture, frame, stage,
+                                 holdout=holdout and stage == "static", spp=spp, variant=variant)
+        if stage == "static":
+            scores["static"] = report
+        else:
+            scores[stage][str(frame)] = report
+    return scores

@@ -202,7 +202,8 @@ def _settings_differences(manifest, capture, texture_size, settings):
     return differences
 
 
-RUN_ENTRIES = (RESULT_FILE, "static", "dynamic", "bio", "metrics.json")
+RUN_ENTRIES = (RESULT_FILE, "static", "dynamic", "bio", "metrics.json", "timings.json",
+               "report.html")
 """What a run writes in OUTDIR; ``--overwrite`` removes only these (the observation cache stays:
 its fingerprint decides whether it is reused)."""
 

@@ -280,12 +280,13 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
 
 
 def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=(),
-                     progress=True):
+                     progress=True, label=STAGE):
     """The static stage on ``capture`` into the prepared result directory ``outdir``.
 
     Builds (or reuses) the observation cache under ``outdir/observations``,
     optimizes with checkpoints under ``outdir/static``, writes
     ``static/maps_f####.exr`` and its previews, and registers the maps.
+    ``label`` names the stage on its progress bars (e.g. ``[1/3] static``).
     """
     import mitsuba as mi
 
@@ -303,7 +304,7 @@ def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=
     stage_dir = outdir / STAGE
     stage_dir.mkdir(parents=True, exist_ok=True)
     result = run_polarimetric_fit(store, atlas, config, checkpoint=stage_dir / CHECKPOINT_FILE,
-                                  progress=progress)
+                                  progress=progress, description=label)
     metadata = {"config": config.to_json(), "texel_views": len(store),
                 "seconds": round(time.perf_counter() - start, 3), "variant": mi.variant()}
     result.path = write_stage_maps(outdir, STAGE, frame, result.maps, metadata)

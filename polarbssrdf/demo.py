@@ -1,0 +1,343 @@
+"""``polarbssrdf demo OUTDIR``: the whole acquisition on a synthetic face, end to end.
+
+The demo runs the commands a user would run, in this process and with the
+same argument parser, and prints each one so it can be repeated by hand:
+
+1. ``polarbssrdf synth OUTDIR/capture``: a face seen by ``views`` cameras
+   through the polarization sensor (raw 12-bit mosaics with sensor noise,
+   demosaicked on load), ``frames`` frames with a hemoglobin flush in the
+   cheeks, truth maps whose eta and roughness are far from the fit's start
+   values (:data:`TRUTH_SETTINGS`);
+2. ``polarbssrdf reconstruct OUTDIR/capture OUTDIR/result --holdout CAM``:
+   the static, dynamic and biophysical stages, one camera held out;
+3. the evaluation of every stage and frame against the truth
+   (:func:`polarbssrdf.inverse.evaluate.evaluate_stages`), written to
+   ``OUTDIR/metrics.json`` with the wall time of every step;
+4. the report, ``OUTDIR/report.html`` (:mod:`polarbssrdf.report`).
+
+``--resume`` continues an interrupted demo: each step resumes its own
+checkpoints. ``OUTDIR/demo.json`` records the settings, so a resume with
+other settings is refused with the differences named.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from polarbssrdf.errors import CommandError
+
+DEMO_FILE = "demo.json"
+DEMO_SCHEMA = "polarbssrdf.demo"
+METRICS_SCHEMA = "polarbssrdf.demo_metrics"
+SCHEMA_VERSION = 1
+DEMO_ENTRIES = ("capture", "result", "report.html", "metrics.json", DEMO_FILE,
+                "truth_settings.json")
+"""What the demo writes in OUTDIR; ``--overwrite`` removes only these."""
+
+TRUTH_SETTINGS = {"reflectance": {"eta": [1.50, 0.04, 1.3, 1.6],
+                                  "alpha_s": [0.38, 0.05, 0.1, 0.7]}}
+"""Truth whose means differ from the fit's start values (eta 1.4, alpha_s 0.35) and vary
+more than synth's defaults, so a stage that does not move scores badly."""
+
+
+@dataclass(frozen=True)
+class DemoSettings:
+    """The size of the demo.
+
+    Parameters
+    ----------
+    views : int
+        Cameras of the ring rig (each with its coaxial light); one is held out
+        of the fit and re-rendered for validation. At least 3.
+    frames : int
+        Frames; frame 0 is the static frame, the others carry the flush. At least 2.
+    texture : int
+        Map size T x T, texels (also the truth's).
+    resolution : int
+        Image width and height, px.
+    spp : int
+        Samples per pixel of the synthetic images.
+    iterations : int or None
+        Epochs of the static stage and of each dynamic frame (None: the
+        config's defaults, 150 and 30).
+    raw : bool
+        Raw sensor mosaics with noise (True) or noise-free analyser images.
+    seed : int
+        Seed of the truth maps, render and sensor noise.
+    """
+
+    views: int = 8
+    frames: int = 4
+    texture: int = 256
+    resolution: int = 384
+    spp: int = 8
+    iterations: int | None = None
+    raw: bool = True
+    seed: int = 0
+
+    def __post_init__(self):
+        for name, minimum in (("views", 3), ("frames", 2), ("texture", 16), ("resolution", 32),
+                              ("spp", 1)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < minimum:
+                raise ValueError(f"demo --{name} must be an integer >= {minimum}, got {value!r}")
+        if self.iterations is not None and self.iterations < 1:
+            raise ValueError(f"demo --iterations must be >= 1, got {self.iterations}")
+
+    @property
+    def holdout(self) -> str:
+        """The camera left out of the fit: the middle one of the ring."""
+        return f"cam{self.views // 2:02d}"
+
+
+def synth_arguments(settings, capture_dir, params_path, resume) -> list[str]:
+    """``polarbssrdf synth`` arguments of the demo's capture."""
+    arguments = ["synth", str(capture_dir), "--object", "face", "--views", str(settings.views),
+                 "--frames", str(settings.frames), "--resolution", str(settings.resolution),
+                 "--texture", str(settings.texture), "--spp", str(settings.spp),
+                 "--seed", str(settings.seed), "--params", str(params_path)]
+    if settings.raw:
+        arguments.append("--raw")
+    if resume:
+        arguments.append("--resume")
+    return arguments
+
+
+def reconstruct_arguments(settings, capture_dir, result_dir, resume, workers=None,
+                          scheduler=None) -> list[str]:
+    """``polarbssrdf reconstruct`` arguments of the demo's run (all stages)."""
+    arguments = ["reconstruct", str(capture_dir), str(result_dir), "--holdout",
+                 settings.holdout]
+    if settings.iterations is not None:
+        arguments += ["--iterations", str(settings.iterations)]
+    if workers:
+        arguments += ["--workers", str(workers)]
+    if scheduler:
+        arguments += ["--scheduler", scheduler]
+    if resume:
+        arguments.append("--resume")
+    return arguments
+
+
+def prepare_demo_directory(outdir: Path, settings: DemoSettings, *, resume=False,
+                           overwrite=False) -> None:
+    """Create ``outdir`` or check it for ``resume``/``overwrite``; write ``demo.json``."""
+    from polarbssrdf.io.atomic import atomic_write_text
+
+    record = outdir / DEMO_FILE
+    if outdir.exists() and not outdir.is_dir():
+        raise CommandError(f"'{outdir}' exists and is not a directory")
+    existing = outdir.is_dir() and any(outdir.iterdir())
+    if existing and not record.is_file():
+        raise CommandError(f"'{outdir}' is not empty and holds no {DEMO_FILE}: it is not a demo "
+                           "directory; choose a new or empty one (nothing was changed)")
+    if existing and resume:
+        try:
+            earlier = json.loads(record.read_text())["settings"]
+        except (ValueError, KeyError) as error:
+            raise CommandError(f"{record} is unreadable ({error}); use --overwrite to start "
+                               "over") from None
+        current = asdict(settings)
+        differences = [f"--{k}: {earlier.get(k)!r} (first run) vs {v!r} (now)"
+                       for k, v in current.items() if earlier.get(k) != v]
+        if differences:
+            raise CommandError(f"cannot resume the demo in '{outdir}': it was started with other "
+                               f"settings ({'; '.join(differences)}); rerun with them, or use "
+                               "--overwrite to start over")
+        return
+    if existing and not overwrite:
+        raise CommandError(f"'{outdir}' holds a demo: use --resume to continue it, or "
+                           "--overwrite to start over")
+    if existing:
+        for name in DEMO_ENTRIES:
+            path = outdir / name
+            if path.is_dir():
+                shutil.rmtree(path)
+            elif path.exists():
+                path.unlink()
+    outdir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(record, json.dumps({"schema": DEMO_SCHEMA,
+                                          "schema_version": SCHEMA_VERSION,
+                                          "settings": asdict(settings)}, indent=1) + "\n",
+                      overwrite=True)
+
+
+def _run_step(arguments, say) -> None:
+    from polarbssrdf.cli import build_parser, run_command
+
+    say("$ polarbssrdf " + " ".join(arguments))
+    status = run_command(build_parser().parse_args(arguments))
+    if status:
+        raise CommandError(f"'polarbssrdf {arguments[0]}' failed (status {status}; its message "
+                           "is above); fix it and rerun the demo with --resume")
+
+
+def headline_figures(evaluation) -> dict:
+    """The figures a reader looks for first, from :func:`evaluate_stages`'s output."""
+    figures = {}
+    static = evaluation.get("static")
+    if static:
+        maps = static["maps"]
+        for name in ("eta", "alpha_s"):
+            figures[f"static {name} MAE"] = round(maps[name]["mae"], 4)
+            figures[f"static {name} MAE of the best constant map"] = round(
+                maps[name]["constant_mae"], 4)
+        figures["static rho_sss relative error (mean of bands)"] = round(
+            maps["rho_sss"]["mean_relative_error"], 4)
+        figures["static normal error, degrees"] = round(maps["normal"]["mean_deg"], 3)
+        holdout = static.get("holdout") or {}
+        if holdout.get("mean"):
+            figures["held-out I_s RMSE / mean I_sss"] = round(
+                holdout["mean"]["relative_rmse_I_s"], 4)
+            figures["held-out I_sss RMSE / mean I_sss"] = round(
+                holdout["mean"]["relative_rmse_I_sss"], 4)
+    bio = evaluation.get("bio") or {}
+    if bio:
+        for parameter in ("C_m", "beta_m", "C_h_out", "C_h_in"):
+            values = [entry["maps"][parameter]["mae_of_range"] for entry in bio.values()]
+            figures[f"bio {parameter} MAE / Table 2 range (mean over frames)"] = round(
+                sum(values) / len(values), 4)
+    return figures
+
+
+def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, workers=None,
+             scheduler=None, quiet=False) -> dict:
+    """Run the demo into ``outdir``; returns the contents of ``OUTDIR/metrics.json``."""
+    from polarbssrdf.inverse.commands import TIMINGS_FILE
+    from polarbssrdf.inverse.evaluate import evaluate_stages
+    from polarbssrdf.io.atomic import atomic_write_text
+    from polarbssrdf.report import write_report
+
+    outdir = Path(outdir)
+
+    def say(message):
+        if not quiet:
+            print(message, file=sys.stderr, flush=True)
+
+    prepare_demo_directory(outdir, settings, resume=resume, overwrite=overwrite)
+    capture_dir, result_dir = outdir / "capture", outdir / "result"
+    params = outdir / "truth_settings.json"
+    atomic_write_text(params, json.dumps(TRUTH_SETTINGS, indent=1) + "\n", overwrite=True)
+    seconds = {}
+    quiet_flag = ["--quiet"] if quiet else []
+
+    say(f"polarbssrdf demo: [1/4] a synthetic face capture: {settings.views} views, "
+        f"{settings.frames} frames")
+    started = time.perf_counter()
+    synth_resume = resume and capture_dir.is_dir() and any(capture_dir.iterdir())
+    _run_step(synth_arguments(settings, capture_dir, params, synth_resume) + quiet_flag, say)
+    seconds["synth"] = time.perf_counter() - started
+
+    say("polarbssrdf demo: [2/4] reconstruct: static, dynamic and biophysical stages")
+    started = time.perf_counter()
+    result_resume = resume and result_dir.is_dir() and any(result_dir.iterdir())
+    _run_step(reconstruct_arguments(settings, capture_dir, result_dir, result_resume, workers,
+                                    scheduler) + quiet_flag, say)
+    seconds["reconstruct"] = time.perf_counter() - started
+    try:
+        stage_seconds = json.loads((result_dir / TIMINGS_FILE).read_text())
+    except (FileNotFoundError, ValueError):
+        stage_seconds = {}
+
+    say("polarbssrdf demo: [3/4] evaluate every stage and frame against the truth")
+    started = time.perf_counter()
+    evaluation = evaluate_stages(result_dir, capture_dir, holdout=True,
+                                 progress=lambda stage, frame: say(f"  {stage}, frame {frame}"))
+    seconds["evaluate"] = time.perf_counter() - started
+    metrics = {"schema": METRICS_SCHEMA, "schema_version": SCHEMA_VERSION,
+               "settings": asdict(settings), "holdout": [settings.holdout],
+               "headline": headline_figures(evaluation),
+               "seconds": {**{k: round(v, 2) for k, v in seconds.items()},
+                           "stages": stage_seconds},
+               "evaluation": evaluation}
+
+    say("polarbssrdf demo: [4/4] the report")
+    started = time.perf_counter()
+    report = write_report(result_dir, outdir / "report.html", capture=capture_dir,
+                          evaluation=evaluation, title="polarbssrdf demo: a synthetic face",
+                          progress=say)
+    seconds["report"] = time.perf_counter() - started
+    metrics["seconds"]["report"] = round(seconds["report"], 2)
+    atomic_write_text(outdir / "metrics.json", json.dumps(metrics, indent=1) + "\n",
+                      overwrite=True)
+    metrics["report"] = str(report)
+    return metrics
+
+
+# --------------------------------------------------------------------------- command
+def _integer_at_least(minimum):
+    from polarbssrdf.inverse.commands import _integer_at_least as parse
+
+    return parse(minimum)
+
+
+def register(subparsers) -> None:
+    """Add ``demo`` to the ``polarbssrdf`` argument parser."""
+    defaults = DemoSettings()
+    parser = subparsers.add_parser(
+        "demo", help="synthesize a face capture, reconstruct it, evaluate it, write a report",
+        description="The whole acquisition on a synthetic face: 'polarbssrdf synth' (raw "
+                    "polarization mosaics with sensor noise, a hemoglobin flush over the "
+                    "frames), 'polarbssrdf reconstruct' (static, dynamic and biophysical "
+                    "stages, one camera held out), the evaluation of every stage against the "
+                    "truth (OUTDIR/metrics.json) and OUTDIR/report.html. The defaults take "
+                    "about 6 minutes on 2 cores.")
+    parser.add_argument("outdir", type=Path, metavar="OUTDIR",
+                        help="demo directory: new or empty, or an earlier demo with --resume "
+                             "or --overwrite")
+    parser.add_argument("--views", type=_integer_at_least(3), default=defaults.views,
+                        help="cameras; the middle one is held out (default: %(default)s)")
+    parser.add_argument("--frames", type=_integer_at_least(2), default=defaults.frames,
+                        help="frames, the first one static (default: %(default)s)")
+    parser.add_argument("--texture", type=_integer_at_least(16), default=defaults.texture,
+                        metavar="T", help="map size T x T, texels (default: %(default)s)")
+    parser.add_argument("--resolution", type=_integer_at_least(32),
+                        default=defaults.resolution, help="image size, px (default: "
+                                                          "%(default)s)")
+    parser.add_argument("--spp", type=_integer_at_least(1), default=defaults.spp,
+                        help="samples per pixel of the synthetic images (default: %(default)s)")
+    parser.add_argument("--iterations", type=_integer_at_least(1), default=None, metavar="N",
+                        help="epochs of the static stage and of each dynamic frame (default: "
+                             "150 and 30)")
+    parser.add_argument("--analyser", action="store_true",
+                        help="noise-free analyser images instead of raw sensor mosaics")
+    parser.add_argument("--seed", type=_integer_at_least(0), default=defaults.seed,
+                        help="seed of the truth, render and noise (default: %(default)s)")
+    existing = parser.add_mutually_exclusive_group()
+    existing.add_argument("--resume", action="store_true",
+                          help="continue an interrupted demo in OUTDIR (same settings)")
+    existing.add_argument("--overwrite", action="store_true",
+                          help="start over in OUTDIR (removes only what the demo wrote)")
+    cluster = parser.add_mutually_exclusive_group()
+    cluster.add_argument("--workers", type=_integer_at_least(1), default=None, metavar="N",
+                         help="run the per-frame fits on a local Dask cluster of N processes")
+    cluster.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                         help="run the per-frame fits on an existing Dask cluster")
+    parser.add_argument("--quiet", action="store_true", help="no progress display")
+    parser.set_defaults(run=run)
+
+
+def run(args) -> int:
+    """Execute ``polarbssrdf demo``; prints the headline figures, returns 0."""
+    try:
+        settings = DemoSettings(views=args.views, frames=args.frames, texture=args.texture,
+                                resolution=args.resolution, spp=args.spp,
+                                iterations=args.iterations, raw=not args.analyser,
+                                seed=args.seed)
+    except ValueError as error:
+        raise CommandError(str(error)) from None
+    started = time.perf_counter()
+    metrics = run_demo(args.outdir, settings, resume=args.resume, overwrite=args.overwrite,
+                       workers=args.workers, scheduler=args.scheduler, quiet=args.quiet)
+    print(f"polarbssrdf demo: {args.outdir} in {time.perf_counter() - started:.0f} s")
+    for name, value in metrics["headline"].items():
+        print(f"  {name}: {value}")
+    print(f"  report: {metrics['report']}")
+    print(f"  metrics: {Path(args.outdir) / 'metrics.json'}; maps: "
+          f"{Path(args.outdir) / 'result'}")
+    return 0

@@ -1,0 +1,255 @@
+"""``polarbssrdf demo`` end to end at a tiny size, the report, and reconstruct's resume per stage.
+
+One tiny demo (4 views, 3 frames, 32^2 texels, 5 epochs) runs once per
+session; the tests read its directory and never modify it.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+TINY = dict(views=4, frames=3, texture=32, resolution=96, spp=2, iterations=5)
+IMAGE = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
+
+
+@pytest.fixture(scope="session")
+def demo_dir(tmp_path_factory):
+    from polarbssrdf.demo import DemoSettings, run_demo
+
+    outdir = tmp_path_factory.mktemp("demo") / "demo"
+    run_demo(outdir, DemoSettings(**TINY), quiet=True)
+    return outdir
+
+
+def _images(page):
+    return [base64.b64decode(payload) for payload in IMAGE.findall(page)]
+
+
+def test_report_exists_and_every_image_decodes(demo_dir):
+    from PIL import Image
+
+    page = (demo_dir / "report.html").read_text()
+    images = _images(page)
+    assert page.count("<img ") == len(images) >= 25  # every image is an inlined PNG
+    for png in images:
+        with Image.open(io.BytesIO(png)) as image:
+            image.load()
+            assert image.width >= 100 and image.height >= 100
+    for heading in ("Metrics", "Input views", "Static maps against the truth", "Normals",
+                    "Dynamic frames", "Biophysical maps", "Hemoglobin over time",
+                    "Table 2", "Re-rendered view", "Loss curves"):
+        assert heading in page, heading
+    assert "src=\"http" not in page and "src='http" not in page  # self-contained
+
+
+def _finite_numbers(value, where="metrics"):
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield from _finite_numbers(item, f"{where}.{key}")
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            yield from _finite_numbers(item, f"{where}[{index}]")
+    elif isinstance(value, float):
+        yield where, value
+
+
+def test_metrics_are_finite_and_within_loose_bounds(demo_dir):
+    metrics = json.loads((demo_dir / "metrics.json").read_text())
+    for where, value in _finite_numbers(metrics):
+        assert math.isfinite(value), where
+    evaluation = metrics["evaluation"]
+    static = evaluation["static"]["maps"]
+    # 5 epochs on 32^2 texels: loose, but a broken stage (maps at their start values, wrong
+    # units, a transposed texture) lands far outside these
+    assert static["eta"]["mae"] < 0.06
+    assert static["alpha_s"]["mae"] < 0.08
+    assert static["rho_sss"]["mean_relative_error"] < 0.15
+    assert static["normal"]["mean_deg"] < 5.0
+    assert evaluation["static"]["holdout"]["mean"]["relative_rmse_I_sss"] < 0.3
+    assert sorted(evaluation["dynamic"]) == ["1", "2"]
+    assert sorted(evaluation["bio"]) == ["0", "1", "2"]
+    for entry in evaluation["bio"].values():
+        for parameter in ("C_m", "C_h_out"):
+            assert 0 <= entry["maps"][parameter]["mae_of_range"] < 0.5, parameter
+    headline = metrics["headline"]
+    assert headline["static eta MAE"] == pytest.approx(static["eta"]["mae"], abs=1e-4)
+    assert set(metrics["seconds"]) >= {"synth", "reconstruct", "evaluate", "report", "stages"}
+    assert set(metrics["seconds"]["stages"]) == {"static", "dynamic", "bio"}
+
+
+def test_every_stage_is_listed_in_result_json(demo_dir):
+    result = json.loads((demo_dir / "result" / "result.json").read_text())
+    listed = {(m["stage"], m["frame"]) for m in result["maps"]}
+    assert listed == {("static", 0), ("dynamic", 1), ("dynamic", 2), ("bio", 0), ("bio", 1),
+                      ("bio", 2)}
+    for record in result["maps"]:
+        assert (demo_dir / "result" / record["path"]).is_file()
+
+
+def test_demo_refuses_a_foreign_directory_and_other_settings(demo_dir, tmp_path):
+    from polarbssrdf.cli import main
+
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    assert main(["demo", str(foreign), "--overwrite", "--quiet"]) == 2
+    assert (foreign / "notes.txt").read_text() == "keep me"
+
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    shutil.copy(demo_dir / "demo.json", copy / "demo.json")
+    args = ["demo", str(copy), "--resume", "--quiet"]
+    args += [f"--{k}={v}" for k, v in TINY.items() if k != "views"] + ["--views=5"]
+    with pytest.raises(Exception) as error:
+        from polarbssrdf.demo import DemoSettings, run_demo
+
+        run_demo(copy, DemoSettings(**{**TINY, "views": 5}), resume=True, quiet=True)
+    assert "--views: 4 (first run) vs 5 (now)" in str(error.value)
+    assert main(args) == 2
+
+
+def test_report_command_regenerates_from_a_demo_directory(demo_dir, tmp_path, capsys):
+    from polarbssrdf.cli import main
+
+    out = tmp_path / "again.html"
+    assert main(["report", str(demo_dir), "--out", str(out), "--quiet"]) == 0
+    page = out.read_text()
+    # the demo's metrics.json is reused: the held-out re-render figures are in the table
+    assert "Held-out views, re-rendered" in page
+    assert len(_images(page)) == len(_images((demo_dir / "report.html").read_text()))
+
+
+def test_report_without_truth_shows_maps_losses_and_residuals(demo_dir, tmp_path):
+    from polarbssrdf.inverse.commands import select_variant
+    from polarbssrdf.report import write_report
+
+    capture = tmp_path / "real"
+    shutil.copytree(demo_dir / "capture", capture, ignore=shutil.ignore_patterns("truth"))
+    manifest = json.loads((capture / "capture.json").read_text())
+    manifest.update(synthetic=False, truth=None)  # as a real capture's manifest
+    (capture / "capture.json").write_text(json.dumps(manifest))
+    select_variant("llvm_ad_mono_polarized")
+    path = write_report(demo_dir / "result", tmp_path / "report.html", capture=capture)
+    page = path.read_text()
+    assert "without ground truth" in page
+    assert "Metrics" not in page and ": truth" not in page
+    for heading in ("Static maps", "Re-rendered view", "Loss curves", "Biophysical maps"):
+        assert heading in page, heading
+    assert len(_images(page)) >= 15
+
+
+# --------------------------------------------------------------------------- the browser
+def _chromium(*arguments, timeout=120):
+    executable = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert executable, ("Chromium is missing: 'make test' installs Debian's chromium "
+                        "(tools/setup.sh); install it to run the report's browser test")
+    return subprocess.run([executable, "--headless", "--no-sandbox", "--disable-gpu",
+                           "--hide-scrollbars", *arguments], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def _images_broken(page_path):
+    dom = _chromium("--dump-dom", page_path.resolve().as_uri()).stdout
+    body = re.search(r"<body([^>]*)>", dom)
+    assert body, "Chromium printed no DOM"
+    attributes = dict(re.findall(r'(data-images(?:-broken)?)="(\d+)"', body.group(1)))
+    assert attributes, "the report's image check did not run in the browser"
+    return int(attributes["data-images"]), int(attributes["data-images-broken"])
+
+
+def test_report_renders_in_a_real_browser(demo_dir, tmp_path):
+    from PIL import Image
+
+    report = demo_dir / "report.html"
+    shot = tmp_path / "report.png"
+    _chromium("--window-size=1200,3000", f"--screenshot={shot}", report.resolve().as_uri())
+    pixels = np.asarray(Image.open(shot).convert("L"), dtype=np.float64)
+    assert pixels.shape == (3000, 1200)
+    assert pixels.std() > 20.0  # not a blank page
+    assert np.mean(pixels < 200) > 0.05  # text, tables and figures, not a white sheet
+
+    shown, broken = _images_broken(report)
+    assert shown == report.read_text().count("<img ") and broken == 0
+
+    # the check can fail: an image whose data is not a PNG is reported
+    page = report.read_text()
+    payload = IMAGE.search(page).group(1)
+    damaged = tmp_path / "damaged.html"
+    damaged.write_text(page.replace(payload, base64.b64encode(b"not a PNG").decode(), 1))
+    assert _images_broken(damaged) == (shown, 1)
+
+
+# --------------------------------------------------------------------------- interruption
+def _stage_in_progress(result_dir, stage):
+    """Whether ``stage`` has started and not finished (its files tell)."""
+    if stage == "static":
+        return (result_dir / "static" / "checkpoint.npz").is_file() and \
+            not (result_dir / "static" / "maps_f0000.exr").is_file()
+    if stage == "dynamic":
+        return (result_dir / "dynamic" / "maps_f0001.exr").is_file() and \
+            not (result_dir / "dynamic" / "maps_f0002.exr").is_file()
+    return (result_dir / "bio" / "maps_f0000.exr").is_file() and \
+        not (result_dir / "bio" / "maps_f0002.exr").is_file()
+
+
+def _start(arguments):
+    return subprocess.Popen([sys.executable, "-m", "polarbssrdf", *arguments],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
+def test_reconstruct_killed_in_each_stage_resumes_to_the_same_result(demo_dir, tmp_path):
+    from polarbssrdf.io.exr import read_exr
+
+    capture = demo_dir / "capture"
+    result_dir = tmp_path / "result"
+    arguments = ["reconstruct", str(capture), str(result_dir), "--holdout", "cam02",
+                 "--iterations", str(TINY["iterations"]), "--quiet"]
+    first = True
+    for stage, how in (("static", signal.SIGKILL), ("dynamic", signal.SIGKILL),
+                       ("bio", signal.SIGINT)):
+        process = _start(arguments + ([] if first else ["--resume"]))
+        first = False
+        deadline = time.monotonic() + 300
+        while not _stage_in_progress(result_dir, stage):
+            assert process.poll() is None, (f"reconstruct ended before the {stage} stage could "
+                                            f"be interrupted:\n{process.communicate()[1]}")
+            assert time.monotonic() < deadline
+            time.sleep(0.005)
+        process.send_signal(how)
+        _, stderr = process.communicate(timeout=120)
+        if how == signal.SIGINT:
+            assert process.returncode == 130
+            assert "interrupted; rerun with --resume to continue" in stderr
+        else:
+            assert process.returncode == -signal.SIGKILL
+        assert _stage_in_progress(result_dir, stage), f"the kill came after the {stage} stage"
+    process = _start(arguments + ["--resume"])
+    _, stderr = process.communicate(timeout=600)
+    assert process.returncode == 0, stderr
+
+    reference = json.loads((demo_dir / "result" / "result.json").read_text())["maps"]
+    resumed = json.loads((result_dir / "result.json").read_text())["maps"]
+    key = lambda m: (m["stage"], m["frame"])  # noqa: E731
+    assert sorted(map(key, resumed)) == sorted(map(key, reference))
+    for record in reference:
+        expected, _ = read_exr(demo_dir / "result" / record["path"])
+        actual, _ = read_exr(result_dir / record["path"])
+        assert set(actual) == set(expected)
+        for name in expected:
+            np.testing.assert_allclose(actual[name], expected[name], rtol=0, atol=1e-5,
+                                       err_msg=f"{record['path']}: {name}")
