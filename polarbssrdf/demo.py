@@ -13,7 +13,7 @@ same argument parser, and prints each one so it can be repeated by hand:
 3. the evaluation of every stage and frame against the truth
    (:func:`polarbssrdf.inverse.evaluate.evaluate_stages`), written to
    ``OUTDIR/metrics.json`` with the wall time of every step;
-4. the report, ``OUTDIR/report.html`` (:mod:`polarbssrdf.report`).
+4. ``polarbssrdf report OUTDIR``: ``OUTDIR/report.html`` (:mod:`polarbssrdf.report`).
 
 ``--resume`` continues an interrupted demo: each step resumes its own
 checkpoints. ``OUTDIR/demo.json`` records the settings, so a resume with
@@ -211,7 +211,6 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
     from polarbssrdf.inverse.commands import TIMINGS_FILE
     from polarbssrdf.inverse.evaluate import evaluate_stages
     from polarbssrdf.io.atomic import atomic_write_text
-    from polarbssrdf.report import write_report
 
     outdir = Path(outdir)
 
@@ -256,16 +255,18 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
                            "stages": stage_seconds},
                "evaluation": evaluation}
 
+    atomic_write_text(outdir / "metrics.json", json.dumps(metrics, indent=1) + "\n",
+                      overwrite=True)
+
     say("polarbssrdf demo: [4/4] the report")
     started = time.perf_counter()
-    report = write_report(result_dir, outdir / "report.html", capture=capture_dir,
-                          evaluation=evaluation, title="polarbssrdf demo: a synthetic face",
-                          progress=say)
+    # the report command reads the demo directory: its result/ and the evaluation above
+    _run_step(["report", str(outdir)] + quiet_flag, say)
     seconds["report"] = time.perf_counter() - started
     metrics["seconds"]["report"] = round(seconds["report"], 2)
     atomic_write_text(outdir / "metrics.json", json.dumps(metrics, indent=1) + "\n",
                       overwrite=True)
-    metrics["report"] = str(report)
+    metrics["report"] = str(outdir / "report.html")
     return metrics
 
 

@@ -109,7 +109,11 @@ def load_report_data(result_dir, capture=None, evaluation=None, progress=None) -
     if not manifest.maps:
         raise CommandError(f"'{result_dir}' lists no maps yet: run 'polarbssrdf reconstruct' "
                            "to the end (or with --resume) first")
-    capture = truth_capture(result_dir, capture)
+    try:
+        capture = truth_capture(result_dir, capture)
+    except FileNotFoundError as error:
+        raise FileNotFoundError(str(error).replace("pass --truth CAPTURE",
+                                                   "pass --capture CAPTURE")) from None
     atlas = texel_atlas(to_mitsuba(capture.load_mesh()), manifest.texture_size)
     data = ReportData(result_dir=result_dir, manifest=manifest, capture=capture, atlas=atlas)
     for record in manifest.maps:
@@ -578,17 +582,20 @@ def run_report(args) -> int:
     from polarbssrdf.inverse.commands import select_variant
 
     outdir = args.outdir
-    result_dir, evaluation = outdir, None
-    demo_metrics = outdir / "metrics.json"
+    result_dir, evaluation, title = outdir, None, None
     if not (outdir / "result.json").is_file() and (outdir / "result" / "result.json").is_file():
         result_dir = outdir / "result"  # a demo directory
-        metrics = _read_json(demo_metrics)
+        title = "polarbssrdf demo: a synthetic face"
+        metrics = _read_json(outdir / "metrics.json")
         if isinstance(metrics, dict) and "evaluation" in metrics:
             evaluation = metrics["evaluation"]
     out = args.out if args.out is not None else outdir / REPORT_FILE
-    if args.capture is not None and Path(args.capture).resolve() in out.resolve().parents:
-        raise CommandError(f"--out '{out}' is inside the capture: report never writes into "
-                           "its inputs")
+    if (result_dir / "result.json").is_file():
+        from polarbssrdf.inverse.commands import check_report_path
+        from polarbssrdf.inverse.result import read_result
+
+        capture_dir = args.capture if args.capture is not None else read_result(result_dir).capture
+        check_report_path(out, result_dir, capture_dir)
     select_variant(args.variant)
     started = time.perf_counter()
 
@@ -597,7 +604,7 @@ def run_report(args) -> int:
             print(message, file=sys.stderr, flush=True)
 
     path = write_report(result_dir, out, capture=args.capture, evaluation=evaluation,
-                        variant=args.variant, progress=say)
+                        variant=args.variant, title=title, progress=say)
     print(f"polarbssrdf report: wrote {path} ({path.stat().st_size / 1e6:.1f} MB) in "
           f"{time.perf_counter() - started:.1f} s")
     return 0

@@ -467,7 +467,7 @@ def check_report_path(out: Path, outdir: Path, capture_dir: Path | None) -> None
     if capture_dir is not None:
         capture_dir = Path(capture_dir).resolve()
         if target == capture_dir or capture_dir in target.parents:
-            raise CommandError(f"--out '{out}' is inside the capture {capture_dir}: evaluate "
+            raise CommandError(f"--out '{out}' is inside the capture {capture_dir}: polarbssrdf "
                                "never writes into its inputs")
 
 
