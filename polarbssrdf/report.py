@@ -31,6 +31,8 @@ import datetime
 import html
 import json
 import time
+from collections import OrderedDict
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,6 +52,51 @@ RELATIVE_ERROR_MAPS = ("rho_s", "rho_ss")
 BIO_PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
 
 
+class LazyFrames(Mapping):
+    """``frame -> channels``, read from disk when asked for; the last few are kept.
+
+    A sequence of 2K maps is gigabytes: the report holds a handful of frames
+    at a time, never the whole sequence.
+    """
+
+    KEEP = 3
+
+    def __init__(self, frames, read):
+        self._frames = sorted(int(f) for f in frames)
+        self._read = read
+        self._cache = OrderedDict()
+
+    def __getitem__(self, frame):
+        frame = int(frame)
+        if frame not in self._frames:
+            raise KeyError(frame)
+        if frame in self._cache:
+            self._cache.move_to_end(frame)
+        else:
+            self._cache[frame] = self._read(frame)
+            while len(self._cache) > self.KEEP:
+                self._cache.popitem(last=False)
+        return self._cache[frame]
+
+    def __iter__(self):
+        return iter(self._frames)
+
+    def __len__(self):
+        return len(self._frames)
+
+    def __contains__(self, frame):
+        return int(frame) in self._frames
+
+
+def shown_frames(frames, count=4):
+    """Up to ``count`` frames spread over ``frames`` (sorted), the first and last included."""
+    frames = sorted(frames)
+    if len(frames) <= count:
+        return frames
+    picks = np.linspace(0, len(frames) - 1, count).round().astype(int)
+    return [frames[i] for i in sorted(set(picks))]
+
+
 @dataclass
 class ReportData:
     """Everything the report shows, read from a result directory and its capture."""
@@ -59,9 +106,9 @@ class ReportData:
     capture: object
     atlas: object
     maps: dict = field(default_factory=dict)
-    """``{stage: {frame: channels}}`` of the registered maps."""
-    truth: dict = field(default_factory=dict)
-    """``{frame: channels}`` of the capture's ground truth (empty for a real capture)."""
+    """``{stage: LazyFrames}`` of the registered maps."""
+    truth: Mapping = field(default_factory=dict)
+    """``LazyFrames`` of the capture's ground truth (empty for a real capture)."""
     losses: dict = field(default_factory=dict)
     """``OUTDIR/metrics.json``: loss history per stage."""
     bio_summary: dict | None = None
@@ -116,13 +163,14 @@ def load_report_data(result_dir, capture=None, evaluation=None, progress=None) -
                                                    "pass --capture CAPTURE")) from None
     atlas = texel_atlas(to_mitsuba(capture.load_mesh()), manifest.texture_size)
     data = ReportData(result_dir=result_dir, manifest=manifest, capture=capture, atlas=atlas)
+    paths = {}
     for record in manifest.maps:
-        channels, _ = read_exr(result_dir / record["path"])
-        data.maps.setdefault(record["stage"], {})[int(record["frame"])] = channels
+        paths.setdefault(record["stage"], {})[int(record["frame"])] = result_dir / record["path"]
+    for stage, files in paths.items():
+        data.maps[stage] = LazyFrames(files, lambda frame, files=files: read_exr(files[frame])[0])
     if capture.truth is not None:
         if int(capture.truth.texture_size) == int(manifest.texture_size):
-            for record in capture.truth.maps:
-                data.truth[int(record.frame)] = capture.truth_maps(int(record.frame))
+            data.truth = LazyFrames([r.frame for r in capture.truth.maps], capture.truth_maps)
         elif progress:
             progress(f"the truth is {capture.truth.texture_size}^2 texels, the result "
                      f"{manifest.texture_size}^2: shown without truth")
@@ -237,24 +285,27 @@ def dynamic_section(data) -> str:
     if not dynamic:
         return ""
     static_frame = _static_frame(data)
-    frames = {static_frame: data.maps["static"][static_frame], **dynamic}
+    frames = [static_frame] + shown_frames(list(dynamic))
     band = _display_band(data.bands)
     name = f"rho_sss.{band}"
-    recovered = {f: m[name] for f, m in frames.items()}
-    truth = None
-    if all(f in data.truth for f in frames):
-        truth = {f: data.truth[f][name] for f in frames}
+    recovered, truth = {}, {}
     mask = np.asarray(data.atlas.valid, bool)
-    for maps in frames.values():
+    for frame in frames:
+        maps = data.maps["static" if frame == static_frame else "dynamic"][frame]
+        recovered[frame] = maps[name]
         mask &= np.asarray(maps["confidence"]) > 0
+        if frame in data.truth:
+            truth[frame] = data.truth[frame][name]
+    truth = truth if len(truth) == len(frames) else None
+    shown = "" if len(frames) - 1 == len(dynamic) else f" ({len(frames) - 1} shown)"
     return (f"<p>{len(dynamic)} frame(s) fitted from the static maps (eta and roughness "
-            f"held). The change of the subsurface albedo in band {band} against frame "
+            f"held){shown}. The change of the subsurface albedo in band {band} against frame "
             f"{static_frame} shows where the skin flushes.</p>"
             + _image(changes_over_frames_png(name, recovered, truth, mask), "albedo changes"))
 
 
 def biophysical_section(data) -> str:
-    from polarbssrdf.inverse.bio_stage import region_masks, region_summary
+    from polarbssrdf.inverse.bio_stage import region_masks
     from polarbssrdf.report_figures import map_comparison_png, region_series_png
 
     bio = data.maps.get("bio", {})
@@ -282,7 +333,7 @@ def biophysical_section(data) -> str:
     if summary is not None:
         if all(f in data.truth for f in frames):
             masks = region_masks(data.capture, data.capture.load_mesh(), data.atlas)
-            truth_summary = region_summary({f: data.truth[f] for f in frames}, masks)
+            truth_summary = merged_region_summary(data.truth, frames, masks)
         units = summary.get("units", {})
         parts.append("<h3>Hemoglobin over time</h3>")
         parts.append(_image(region_series_png(["C_h_out", "C_h_in"], summary, truth_summary,
@@ -292,6 +343,23 @@ def biophysical_section(data) -> str:
     return ("<p>Melanin (C_m), eumelanin ratio (beta_m) and hemoglobin of the epidermis "
             "(C_h_out) and dermis (C_h_in), fitted to the subsurface albedo of every "
             "band (eq. 40-47). Flagged texels are grey.</p>" + "\n".join(parts))
+
+
+def merged_region_summary(maps, frames, masks):
+    """:func:`~polarbssrdf.inverse.bio_stage.region_summary` of ``frames``, one frame in
+    memory at a time."""
+    from polarbssrdf.inverse.bio_stage import region_summary
+
+    merged = None
+    for frame in frames:
+        part = region_summary({frame: maps[frame]}, masks)
+        if merged is None:
+            merged = part
+            continue
+        for region, entry in part["regions"].items():
+            merged["regions"].setdefault(region, {"texels": entry["texels"], "frames": {}})
+            merged["regions"][region]["frames"].update(entry["frames"])
+    return merged
 
 
 def table2_html(summary, truth_summary, frames) -> str:
@@ -485,6 +553,8 @@ def build_report_html(data, *, variant="llvm_ad_mono_polarized", title=None,
     manifest = data.manifest
     stages = [s for s in ("static", "dynamic", "bio") if s in data.maps]
     frames = sorted({f for per_stage in data.maps.values() for f in per_stage})
+    frame_text = (", ".join(map(str, frames)) if len(frames) <= 12
+                  else f"{frames[0]}-{frames[-1]} ({len(frames)})")
     sections = []
 
     def add(anchor, heading, builder):
@@ -527,7 +597,7 @@ def build_report_html(data, *, variant="llvm_ad_mono_polarized", title=None,
 <p class="meta">Result <code>{html.escape(str(data.result_dir.resolve()))}</code> of capture
 <code>{html.escape(str(manifest.capture))}</code>, {truth_note}.<br>
 {manifest.texture_size} x {manifest.texture_size} texels; stages {', '.join(stages)};
-frames {', '.join(map(str, frames))}; bands {', '.join(data.bands)}.
+frames {frame_text}; bands {', '.join(data.bands)}.
 {_timings_text(data.timings)}{extra}<br>Written {created} by polarbssrdf.report.</p>
 <p id="image-warning"></p>
 <nav>{nav}</nav>

@@ -231,6 +231,15 @@ def region_series_png(parameters, recovered, truth, units) -> bytes:
     return _png(figure)
 
 
+def _loss_axes(axes, xlabel, ylabel, title, legend=None):
+    axes.set_yscale("log")
+    axes.set_xlabel(xlabel)
+    axes.set_ylabel(ylabel)
+    axes.set_title(title, fontsize=10)
+    axes.legend(**(legend or {"fontsize": 7}))
+    axes.grid(alpha=0.3)
+
+
 def loss_curves_png(static_history, dynamic_histories, bio_histories) -> bytes:
     """Loss per epoch (static: every term; dynamic: total per frame) and per
     Gauss-Newton iteration (biophysical: per frame); log scale."""
@@ -255,12 +264,8 @@ def loss_curves_png(static_history, dynamic_histories, bio_histories) -> bytes:
                 continue
             style = dict(lw=2.2, color="black") if term == "total" else dict(lw=1.1)
             axes.plot(epochs, values, label=term, **style)
-        axes.set_yscale("log")
-        axes.set_xlabel("epoch")
-        axes.set_ylabel("loss (chi-square per texel-view; weighted)")
-        axes.set_title("static stage", fontsize=10)
-        axes.legend(fontsize=6, ncol=2)
-        axes.grid(alpha=0.3)
+        _loss_axes(axes, "epoch", "loss (chi-square per texel-view; weighted)", "static stage",
+                   legend=dict(fontsize=6, ncol=2))
     if dynamic_histories:
         axes = panels["dynamic"]
         frames = sorted(dynamic_histories, key=int)
@@ -269,12 +274,7 @@ def loss_curves_png(static_history, dynamic_histories, bio_histories) -> bytes:
             axes.plot([e.get("epoch", i + 1) for i, e in enumerate(history)],
                       [e.get("total", np.nan) for e in history],
                       color=colours(index / max(len(frames) - 1, 1)), label=f"frame {frame}")
-        axes.set_yscale("log")
-        axes.set_xlabel("epoch")
-        axes.set_ylabel("total loss")
-        axes.set_title("dynamic stage", fontsize=10)
-        axes.legend(fontsize=7)
-        axes.grid(alpha=0.3)
+        _loss_axes(axes, "epoch", "total loss", "dynamic stage")
     if bio_histories:
         axes = panels["bio"]
         frames = sorted(bio_histories, key=int)
@@ -282,12 +282,7 @@ def loss_curves_png(static_history, dynamic_histories, bio_histories) -> bytes:
             losses = [v for entry in bio_histories[frame] for v in entry.get("losses", [])]
             axes.plot(np.arange(len(losses)), losses, "o-", ms=2.5,
                       color=colours(index / max(len(frames) - 1, 1)), label=f"frame {frame}")
-        axes.set_yscale("log")
-        axes.set_xlabel("Gauss-Newton iteration")
-        axes.set_ylabel("loss (data + prior)")
-        axes.set_title("biophysical stage", fontsize=10)
-        axes.legend(fontsize=7)
-        axes.grid(alpha=0.3)
+        _loss_axes(axes, "Gauss-Newton iteration", "loss (data + prior)", "biophysical stage")
     return _png(figure)
 
 

@@ -1,5 +1,7 @@
 """Helpers shared by the tests (on the pytest path through ``pythonpath``)."""
 
+import signal
+
 import numpy as np
 
 
@@ -10,3 +12,13 @@ def mueller_to_numpy(M):
     entries = [[e.T if e.ndim == 2 else np.atleast_1d(e) for e in row] for row in entries]
     shape = np.broadcast_shapes(*[e.shape for row in entries for e in row])
     return np.array([[np.broadcast_to(e, shape) for e in row] for row in entries])
+
+
+def default_sigint():
+    """``preexec_fn`` for children that must see Ctrl-C: SIGINT back to its default action.
+
+    A command started in the background by a non-interactive shell (``make test &``,
+    some CI runners) inherits SIGINT ignored, and Python then never raises
+    KeyboardInterrupt; a test that sends SIGINT would see the child run to the end.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

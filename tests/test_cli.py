@@ -11,6 +11,7 @@ import mitsuba as mi
 import pytest
 
 import polarbssrdf
+from helpers import default_sigint
 from polarbssrdf.cli import main
 from polarbssrdf.errors import CommandError, is_plugin_error, plugin_error_message
 
@@ -132,7 +133,8 @@ def test_sigint_to_a_running_render(tmp_path):
     outdir = tmp_path / "out"
     child = subprocess.Popen([*launcher, "render", str(SPHERE), str(outdir), "-D",
                               "resolution=256", "-D", "spp=256"],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=default_sigint)
     try:
         deadline = time.monotonic() + 15
         while not variant_loaded(child.pid, "llvm_ad_mono_polarized"):
