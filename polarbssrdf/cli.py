@@ -12,7 +12,8 @@ import importlib
 import sys
 
 import polarbssrdf
-from polarbssrdf.errors import CommandError, is_plugin_error, plugin_error_message
+from polarbssrdf.errors import (CommandError, is_interrupted_plugin, is_plugin_error,
+                                plugin_error_message)
 
 COMMAND_MODULES = (
     "polarbssrdf.render.commands",
@@ -79,11 +80,13 @@ def caused_by_interrupt(error: BaseException) -> bool:
     Ctrl-C inside a C++ extension can surface as another exception whose cause
     is the ``KeyboardInterrupt``: e.g. during :func:`mitsuba.set_variant`,
     which imports modules, Python reports ``SystemError: <built-in function
-    __import__> returned a result with an exception set``.
+    __import__> returned a result with an exception set``; inside a Python
+    plugin's constructor Mitsuba reports it as a plugin error whose traceback
+    ends in ``KeyboardInterrupt`` (:func:`polarbssrdf.errors.is_interrupted_plugin`).
     """
     seen = set()
     while error is not None and id(error) not in seen:
-        if isinstance(error, KeyboardInterrupt):
+        if isinstance(error, KeyboardInterrupt) or is_interrupted_plugin(error):
             return True
         seen.add(id(error))
         error = error.__cause__ or error.__context__

@@ -30,6 +30,20 @@ def is_plugin_error(error: BaseException) -> bool:
     return isinstance(error, RuntimeError) and _TRACEBACK_HEADER in str(error)
 
 
+def is_interrupted_plugin(error: BaseException) -> bool:
+    """Whether ``error`` is Mitsuba's wrapper around a Ctrl-C inside a Python plugin.
+
+    A ``KeyboardInterrupt`` raised while Mitsuba constructs a Python plugin
+    reaches the caller as a plugin error (:func:`is_plugin_error`) whose
+    embedded traceback ends in ``KeyboardInterrupt``; the exception itself is gone.
+    """
+    if not is_plugin_error(error):
+        return False
+    traceback_text = str(error).rpartition(_TRACEBACK_HEADER)[2]
+    lines = _exception_lines(traceback_text)
+    return bool(lines) and lines[-1].startswith("KeyboardInterrupt")
+
+
 def _exception_lines(traceback_text: str) -> list[str]:
     """The final ``Type: message`` lines of a formatted traceback (its frames are indented)."""
     lines = traceback_text.splitlines()

@@ -78,6 +78,43 @@ def test_ctrl_c_inside_an_import_is_still_an_interrupt(monkeypatch, capsys):
     assert capsys.readouterr().err == "polarbssrdf render: interrupted\n"
 
 
+def test_ctrl_c_inside_a_python_plugin_is_still_an_interrupt(monkeypatch, capsys):
+    """Mitsuba turns a KeyboardInterrupt in a Python plugin's constructor into a plugin error."""
+    mi.set_variant("scalar_rgb")
+
+    class Interrupted(mi.BSDF):
+        def __init__(self, props):
+            raise KeyboardInterrupt
+
+    class Refusing(mi.BSDF):
+        def __init__(self, props):
+            raise ValueError("refusing: parameter out of range")
+
+    mi.register_bsdf("test_interrupted", Interrupted)
+    mi.register_bsdf("test_refusing", Refusing)
+    errors = {}
+    for name in ("test_interrupted", "test_refusing"):
+        try:
+            mi.load_dict({"type": name})
+        except RuntimeError as error:
+            errors[name] = error
+    assert is_plugin_error(errors["test_interrupted"]) and is_plugin_error(errors["test_refusing"])
+
+    def run(args):
+        raise errors["test_interrupted"]
+
+    monkeypatch.setattr("polarbssrdf.render.commands.run", run)
+    assert main(["render", "scene.xml", "out"]) == 130
+    assert capsys.readouterr().err == "polarbssrdf render: interrupted\n"
+
+    def refuse(args):
+        raise errors["test_refusing"]
+
+    monkeypatch.setattr("polarbssrdf.render.commands.run", refuse)
+    assert main(["render", "scene.xml", "out"]) == 2  # a plugin's own error stays an error
+    assert "refusing: parameter out of range" in capsys.readouterr().err
+
+
 def test_ctrl_c_is_not_reported_as_the_error_it_caused(monkeypatch, capsys):
     """A CommandError raised while handling Ctrl-C (e.g. "cannot activate variant") is Ctrl-C."""
     def interrupted_variant(args):

@@ -250,3 +250,21 @@ def test_reconstruct_killed_in_each_stage_resumes_to_the_same_result(demo_dir, t
         for name in expected:
             np.testing.assert_allclose(actual[name], expected[name], rtol=0, atol=1e-5,
                                        err_msg=f"{record['path']}: {name}")
+
+
+def test_ctrl_c_during_the_demo_is_one_line_and_says_how_to_resume(tmp_path):
+    outdir = tmp_path / "demo"
+    arguments = ["demo", str(outdir)] + [f"--{k}={v}" for k, v in TINY.items()] + ["--quiet"]
+    process = _start(arguments)
+    deadline = time.monotonic() + 120
+    while not list((outdir / "capture").glob("images/f0000/*.exr")):
+        assert process.poll() is None, process.communicate()[1]
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1] == ("polarbssrdf demo: interrupted; rerun with "
+                                               "--resume to continue")
+    assert "Traceback" not in stderr
+    assert (outdir / "demo.json").is_file() and not (outdir / "report.html").exists()
