@@ -190,8 +190,7 @@ def _image(png: bytes, alt: str) -> str:
 
 
 def _static_mask(data, maps):
-    mask = np.asarray(data.atlas.valid, bool) & (np.asarray(maps["confidence"]) > 0)
-    return mask
+    return np.asarray(data.atlas.valid, bool) & (np.asarray(maps["confidence"]) > 0)
 
 
 def _bio_mask(data, maps):
