@@ -11,7 +11,7 @@ have_llvm() {
 }
 
 have_chromium() {
-    # the report's browser test (tests/test_report_browser.py) uses Debian's Chromium
+    # the browser test of the HTML report (tests/test_demo.py) uses Debian's Chromium
     command -v chromium >/dev/null 2>&1
 }
 
