@@ -271,14 +271,10 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
 
 
 # --------------------------------------------------------------------------- command
-def _integer_at_least(minimum):
-    from polarbssrdf.inverse.commands import _integer_at_least as parse
-
-    return parse(minimum)
-
-
 def register(subparsers) -> None:
     """Add ``demo`` to the ``polarbssrdf`` argument parser."""
+    from polarbssrdf.inverse.commands import _integer_at_least
+
     defaults = DemoSettings()
     parser = subparsers.add_parser(
         "demo", help="synthesize a face capture, reconstruct it, evaluate it, write a report",

@@ -49,7 +49,6 @@ fit, not by 4 spp of a direct-light render)."""
 
 STATIC_MAPS = ("eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement")
 RELATIVE_ERROR_MAPS = ("rho_s", "rho_ss")
-BIO_PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
 
 
 class LazyFrames(Mapping):
@@ -222,7 +221,8 @@ def input_views_section(data) -> str:
         views.append((f"{record.camera} ({band})", images["I0"], images["I90"]))
     kind = "raw sensor mosaics, demosaicked" if chosen and chosen[0].kind == "raw" else \
         "analyser images"
-    return (f"<p>Frame {frame}, {len(seen)} cameras ({kind}); three shown. I90 blocks most "
+    return (f"<p>Frame {frame}, {len(seen)} cameras ({kind}); {len(chosen)} shown. I90 blocks "
+            "most "
             "of the specular reflection (the light is polarized at 0 degrees), so "
             "I0 - I90 is the specular part and 2 I90 the subsurface part (eq. 22-24).</p>"
             + _image(input_views_png(views, "linear radiance"), "input views"))
@@ -304,7 +304,8 @@ def dynamic_section(data) -> str:
 
 
 def biophysical_section(data) -> str:
-    from polarbssrdf.inverse.bio_stage import region_masks
+    from polarbssrdf.inverse.bio_stage import UNITS, region_masks
+    from polarbssrdf.inverse.biophysical_model import PARAMETERS as BIO_PARAMETERS
     from polarbssrdf.report_figures import map_comparison_png, region_series_png
 
     bio = data.maps.get("bio", {})
@@ -320,12 +321,10 @@ def biophysical_section(data) -> str:
         for name in BIO_PARAMETERS:
             reference = truth.get(name) if truth is not None else None
             parts.append(_image(map_comparison_png(name, maps[name], reference, mask,
-                                                   "volume fraction" if name != "beta_m"
-                                                   else "fraction of melanin"),
-                                f"{name} frame {frame}"))
+                                                   UNITS[name]), f"{name} frame {frame}"))
         parts.append(_image(map_comparison_png("residual", maps["residual"], None,
                                                np.asarray(data.atlas.valid, bool),
-                                               "relative albedo residual"),
+                                               f"{UNITS['residual']} (RMS over bands)"),
                             f"residual frame {frame}"))
     summary = data.bio_summary
     truth_summary = None
@@ -363,6 +362,7 @@ def merged_region_summary(maps, frames, masks):
 
 def table2_html(summary, truth_summary, frames) -> str:
     """Mean +- std per region (rows) and parameter (columns), first and last frame."""
+    from polarbssrdf.inverse.biophysical_model import PARAMETERS as BIO_PARAMETERS
     shown = sorted({frames[0], frames[-1]})
     header = "".join(f"<th>{html.escape(p)}</th>" for p in BIO_PARAMETERS)
     rows = []
@@ -431,6 +431,7 @@ def _ratio(constant, value):
 
 def metrics_html(evaluation) -> str:
     """The evaluate figures of every stage as HTML tables."""
+    from polarbssrdf.inverse.biophysical_model import PARAMETERS as BIO_PARAMETERS
     parts = []
     static = evaluation.get("static")
     if static:

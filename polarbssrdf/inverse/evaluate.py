@@ -196,11 +196,19 @@ def biophysical_scores(maps, truth, valid):
     return scores, scored
 
 
-def _evaluate_biophysical(outdir, capture, frame, maps, truth, manifest):
+def _capture_atlas(capture, texture_size, atlas=None, variant=None):
+    """The texel atlas of the capture's base mesh (``atlas`` if given: callers scoring many
+    frames build it once)."""
+    if atlas is not None:
+        return atlas
     from polarbssrdf.geometry import texel_atlas, to_mitsuba
 
-    _ensure_jit_variant(None)
-    atlas = texel_atlas(to_mitsuba(capture.load_mesh()), manifest.texture_size)
+    _ensure_jit_variant(variant)
+    return texel_atlas(to_mitsuba(capture.load_mesh()), texture_size)
+
+
+def _evaluate_biophysical(outdir, capture, frame, maps, truth, manifest, atlas=None):
+    atlas = _capture_atlas(capture, manifest.texture_size, atlas)
     scores, scored = biophysical_scores(maps, truth, atlas.valid)
     return {
         "schema": EVALUATION_SCHEMA, "schema_version": EVALUATION_SCHEMA_VERSION,
@@ -214,7 +222,7 @@ def _evaluate_biophysical(outdir, capture, frame, maps, truth, manifest):
 
 
 def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=True,
-                    spp=None, variant=None) -> dict:
+                    spp=None, variant=None, atlas=None) -> dict:
     """Score a result directory's maps of ``stage``/``frame`` against a capture's truth.
 
     Parameters
@@ -234,6 +242,8 @@ def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=Tr
     spp, variant
         Samples per pixel and Mitsuba variant of the re-renders (defaults
         :data:`polarbssrdf.inverse.rerender.DEFAULT_SPP`, ``llvm_ad_mono_polarized``).
+    atlas : TexelAtlas, optional
+        The capture mesh's atlas at the result's texture size (built here if not given).
 
     Returns
     -------
@@ -249,7 +259,6 @@ def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=Tr
         The capture has no truth (for the frame), the texture sizes differ,
         channels are missing.
     """
-    from polarbssrdf.geometry import texel_atlas, to_mitsuba
     from polarbssrdf.inverse import rerender
     from polarbssrdf.inverse.result import read_result, read_stage_maps
 
@@ -259,7 +268,7 @@ def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=Tr
     capture = truth_capture(outdir, capture)
     truth = _truth_maps(capture, frame)
     if stage == "bio":
-        return _evaluate_biophysical(outdir, capture, frame, maps, truth, manifest)
+        return _evaluate_biophysical(outdir, capture, frame, maps, truth, manifest, atlas)
     truth_size = capture.truth.texture_size
     if manifest.texture_size != truth_size:
         raise ValueError(f"texture size mismatch: the result {outdir} is {manifest.texture_size} x "
@@ -268,8 +277,7 @@ def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=Tr
                          f"{truth_size}")
     if capture.mesh_path is None:
         raise ValueError(f"capture '{capture.directory}' has no mesh: the truth normals need it")
-    _ensure_jit_variant(variant)
-    atlas = texel_atlas(to_mitsuba(capture.load_mesh()), truth_size)
+    atlas = _capture_atlas(capture, truth_size, atlas, variant)
     scores, scored = evaluate_maps(maps, truth, atlas, capture.manifest.band_names,
                                    manifest.units)
     confidence = np.asarray(maps["confidence"])
@@ -316,6 +324,8 @@ def evaluate_stages(outdir, capture=None, *, holdout=True, spp=None, variant=Non
     truth_frames = ({int(r.frame) for r in capture.truth.maps} if capture.truth is not None
                     else set())
     scores = {"static": None, "dynamic": {}, "bio": {}}
+    atlas = _capture_atlas(capture, manifest.texture_size, variant=variant) if truth_frames \
+        else None
     order = {"static": 0, "dynamic": 1, "bio": 2}
     for record in sorted(manifest.maps, key=lambda r: (order.get(r["stage"], 3), r["frame"])):
         stage, frame = record["stage"], int(record["frame"])
@@ -324,7 +334,8 @@ def evaluate_stages(outdir, capture=None, *, holdout=True, spp=None, variant=Non
         if progress is not None:
             progress(stage, frame)
         report = evaluate_result(outdir, capture, frame, stage,
-                                 holdout=holdout and stage == "static", spp=spp, variant=variant)
+                                 holdout=holdout and stage == "static", spp=spp, variant=variant,
+                                 atlas=atlas)
         if stage == "static":
             scores["static"] = report
         else:
