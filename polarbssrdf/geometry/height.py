@@ -2,26 +2,118 @@
 
 from __future__ import annotations
 
+import dataclasses
+
+import drjit as dr
 import numpy as np
 
-from polarbssrdf._arrays import constant_like, neighbour_index, take
+from polarbssrdf._arrays import constant_like, neighbour_index, take, to_jit
 
 
-def _shifted(height, axis, step):
+@dataclasses.dataclass(frozen=True)
+class HeightFrame:
+    """What eq. 25 needs of an atlas besides ``H``, computed once (see :func:`height_frame`).
+
+    Attributes
+    ----------
+    normal : (T, T, 3) float64
+        Unit shading normal ``n0``.
+    tangent_u, tangent_v : (T, T, 3) float64
+        ``P dp/du`` and ``P dp/dv``: the surface tangents projected on ``n0``'s plane.
+    orientation : (T, T) float64
+        +-1 orienting ``tangent_u x tangent_v`` like ``n0``.
+    valid : (T, T) bool
+    fallback : (T, T, 3)
+        The atlas normal, returned off the mesh (NumPy path).
+    shape : (rows, cols)
+    """
+
+    normal: np.ndarray
+    tangent_u: np.ndarray
+    tangent_v: np.ndarray
+    orientation: np.ndarray
+    valid: np.ndarray
+    fallback: np.ndarray
+    shape: tuple
+
+    def on_device(self, tensor_type):
+        """The frame's constants as ``tensor_type`` maps, for Dr.Jit heights (:class:`DeviceHeightFrame`)."""
+
+        def as_map(values):
+            return to_jit(tensor_type, values, np.float32)
+
+        def maps(values):
+            return tuple(as_map(values[..., k]) for k in range(3))
+
+        rows, cols = self.shape
+        border_u = np.ones((rows, cols), np.float32)
+        border_u[:, [0, -1]] = 2.0
+        border_v = np.ones((rows, cols), np.float32)
+        border_v[[0, -1], :] = 2.0
+        index_type = dr.uint32_array_t(dr.array_t(tensor_type))
+        shifts = {(axis, step): to_jit(index_type, neighbour_index(self.shape, axis, step),
+                                       np.uint32)
+                  for axis in (0, 1) for step in (-1, 1)}
+        return DeviceHeightFrame(
+            normal=maps(self.normal), tangent_u=maps(self.tangent_u),
+            tangent_v=maps(self.tangent_v),
+            orientation=as_map(self.orientation),
+            border_u=as_map(border_u),
+            border_v=as_map(border_v), shifts=shifts, shape=self.shape)
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceHeightFrame:
+    """A :class:`HeightFrame` as Dr.Jit tensors (components as tuples of (T, T) maps)."""
+
+    normal: tuple
+    tangent_u: tuple
+    tangent_v: tuple
+    orientation: object
+    border_u: object
+    border_v: object
+    shifts: dict
+    shape: tuple
+
+
+def height_frame(atlas):
+    """The per-texel constants of eq. 25 of ``atlas`` (:class:`HeightFrame`)."""
+    n0 = atlas.normal.astype(np.float64)
+    n0 /= np.maximum(np.linalg.norm(n0, axis=-1, keepdims=True), 1e-30)
+    # tangents projected onto the shading normal's plane: P dp/du x P dp/dv is parallel to n0
+    a = atlas.dp_du - np.sum(atlas.dp_du * n0, axis=-1, keepdims=True) * n0
+    b = atlas.dp_dv - np.sum(atlas.dp_dv * n0, axis=-1, keepdims=True) * n0
+    # Mitsuba's v runs against the OBJ's (see polarbssrdf.geometry), which turns
+    # dp/du x dp/dv inward: orient by the undisplaced surface. (The projection
+    # keeps det(dp/du, dp/dv, n0), so the sign is the unprojected one.)
+    orientation = np.where(np.sum(np.cross(a, b) * n0, axis=-1) < 0, -1.0, 1.0)
+    return HeightFrame(n0, a, b, orientation, np.asarray(atlas.valid, bool), atlas.normal,
+                       tuple(atlas.valid.shape))
+
+
+def _shifted(height, axis, step, shifts=None):
     """``height`` shifted by one texel along ``axis`` (edge texels repeated)."""
+    if shifts is not None:
+        Array = type(height.array)
+        return type(height)(dr.gather(Array, height.array, shifts[(axis, step)]), height.shape)
     return take(height, neighbour_index(height.shape[:2], axis, step))
 
 
-def height_gradient(height):
+def height_gradient(height, frame=None):
     """``(dH/du, dH/dv)`` per texel by central differences, in height units per unit ``u``/``v``.
 
     ``u`` runs along columns and ``v`` along rows (texture convention of
     :mod:`polarbssrdf.geometry`); one texel is ``1 / T`` in ``u`` and ``v``.
-    One-sided differences at the borders.
+    One-sided differences at the borders. ``frame``: a
+    :class:`DeviceHeightFrame` whose shift indices and border factors to reuse
+    (Dr.Jit heights).
     """
     rows, cols = height.shape[0], height.shape[1]
-    dH_du = (_shifted(height, 1, +1) - _shifted(height, 1, -1)) * (0.5 * cols)
-    dH_dv = (_shifted(height, 0, +1) - _shifted(height, 0, -1)) * (0.5 * rows)
+    shifts = None if frame is None else frame.shifts
+    dH_du = (_shifted(height, 1, +1, shifts) - _shifted(height, 1, -1, shifts)) * (0.5 * cols)
+    dH_dv = (_shifted(height, 0, +1, shifts) - _shifted(height, 0, -1, shifts)) * (0.5 * rows)
+    if frame is not None:
+        return dH_du * frame.border_u, dH_dv * frame.border_v
     # the border differences span one texel, not two
     border_u = np.ones((rows, cols), np.float32)
     border_u[:, [0, -1]] = 2.0
@@ -53,40 +145,34 @@ def normals_from_height(height, atlas):
     ----------
     height : (T, T) array (NumPy, or Dr.Jit TensorXf for autodiff)
         Displacement along the shading normal, mm.
-    atlas : TexelAtlas
-        Surface frame per texel.
+    atlas : TexelAtlas, HeightFrame or DeviceHeightFrame
+        Surface frame per texel; an optimizer evaluating eq. 25 at every step
+        passes the frame of :func:`height_frame` (on the device for Dr.Jit
+        heights) so its constants are computed once.
 
     Returns
     -------
     (T, T, 3) NumPy array, or a tuple of three (T, T) tensors for Dr.Jit input.
     Texels off the mesh get ``atlas.normal`` (NumPy path).
     """
+    if isinstance(atlas, DeviceHeightFrame):
+        return _device_normals(height, atlas)
+    frame = atlas if isinstance(atlas, HeightFrame) else height_frame(atlas)
+    if not isinstance(height, np.ndarray):
+        return _device_normals(height, frame.on_device(type(height)))
     dH_du, dH_dv = height_gradient(height)
-    n0 = atlas.normal.astype(np.float64)
-    n0 /= np.maximum(np.linalg.norm(n0, axis=-1, keepdims=True), 1e-30)
-    # tangents projected onto the shading normal's plane: P dp/du x P dp/dv is parallel to n0
-    a = atlas.dp_du - np.sum(atlas.dp_du * n0, axis=-1, keepdims=True) * n0
-    b = atlas.dp_dv - np.sum(atlas.dp_dv * n0, axis=-1, keepdims=True) * n0
-    # Mitsuba's v runs against the OBJ's (see polarbssrdf.geometry), which turns
-    # dp/du x dp/dv inward: orient by the undisplaced surface. (The projection
-    # keeps det(dp/du, dp/dv, n0), so the sign is the unprojected one.)
-    orientation = np.where(np.sum(np.cross(a, b) * n0, axis=-1) < 0, -1.0, 1.0)
-    if isinstance(height, np.ndarray):
-        du = a + dH_du[..., None] * n0
-        dv = b + dH_dv[..., None] * n0
-        n = np.cross(du, dv) * orientation[..., None]
-        n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-30)
-        return np.where(atlas.valid[..., None], n, atlas.normal)
-    import drjit as dr
+    n0 = frame.normal
+    du = frame.tangent_u + dH_du[..., None] * n0
+    dv = frame.tangent_v + dH_dv[..., None] * n0
+    n = np.cross(du, dv) * frame.orientation[..., None]
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-30)
+    return np.where(frame.valid[..., None], n, frame.fallback)
 
-    Tensor = type(height)
 
-    def component(array, k):
-        return constant_like(height, array[..., k])
-
-    du = [component(a, k) + dH_du * component(n0, k) for k in range(3)]
-    dv = [component(b, k) + dH_dv * component(n0, k) for k in range(3)]
-    sign = constant_like(height, orientation)
+def _device_normals(height, frame):
+    dH_du, dH_dv = height_gradient(height, frame)
+    du = [frame.tangent_u[k] + dH_du * frame.normal[k] for k in range(3)]
+    dv = [frame.tangent_v[k] + dH_dv * frame.normal[k] for k in range(3)]
     n = [du[1] * dv[2] - du[2] * dv[1], du[2] * dv[0] - du[0] * dv[2], du[0] * dv[1] - du[1] * dv[0]]
     length = dr.sqrt(dr.maximum(n[0] * n[0] + n[1] * n[1] + n[2] * n[2], 1e-30))
-    return tuple(c * sign / length for c in n)
+    return tuple(c * frame.orientation / length for c in n)

@@ -15,7 +15,10 @@ when only the start of ``rho_s`` changed (0.5 -> 0.8). In ``q`` the
 valley is along an axis, and the optimizer's per-parameter scaling handles it.
 ``rho_sss`` per band is linear given the rest: before each gradient step it
 is solved per texel and band by least squares on ``L_sss``
-(:func:`solve_subsurface_albedo`), then held. The global gradient norm is
+(:func:`solve_subsurface_albedo`), then held. Dr.Jit's reverse pass
+differentiates the data and temporal terms; the regularizers (eq. 33-35) bring
+their own exact gradients (:mod:`polarbssrdf.inverse.regularizers`), which
+are added to it (:func:`patch_gradients`). The global gradient norm is
 clipped, and every map is clamped to its bounds after the step.
 
 Specular vs single scattering: both lobes are GGX lobes with the same
@@ -30,6 +33,8 @@ learn from all of them either way.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import drjit as dr
 import numpy as np
@@ -209,7 +214,7 @@ def window_normals(height_window, prepared):
     shape = prepared.window_valid.shape
     # off-mesh texels carry no surface: keep their H out of the valid texels' differences
     nx, ny, nz = normals_from_height(TensorXf(height_window * prepared.window_valid_jit, shape),
-                                     prepared.atlas)
+                                     prepared.height_frame)
     return Array3f(*[_per_view(c.array, prepared) for c in (nx, ny, nz)])
 
 
@@ -368,8 +373,60 @@ def texel_view_terms(params, prepared, config, solve_albedo=True):
     return per_view, weight, values
 
 
+REGULARIZERS = {
+    "H_magnitude": ("displacement", displacement_magnitude),
+    "H_laplacian": ("displacement", displacement_laplacian),
+    "alpha_s_smoothness": ("alpha_s", neighbourhood_smoothness),
+    "alpha_ss_smoothness": ("alpha_ss", neighbourhood_smoothness),
+    "eta_smoothness": ("eta", neighbourhood_smoothness),
+}
+"""Each regularizer term (eq. 33-35): the map it acts on and its function."""
+
+
+@dataclasses.dataclass
+class PatchLoss:
+    """The loss of one patch.
+
+    Attributes
+    ----------
+    terms : dict
+        Every term: Dr.Jit scalars for the data and temporal terms, floats for the regularizers.
+    total : Float
+        The weighted sum (a Dr.Jit scalar); only its data and temporal terms
+        are attached to the maps, the regularizers enter as constants.
+    weight : Float
+        The usable-view weight of every texel-view.
+    regularizer_gradient : dict
+        ``map -> (n_window,) float64``: the gradient of the weighted
+        regularizers over the window (:mod:`polarbssrdf.inverse.regularizers`).
+    """
+
+    terms: dict
+    total: object
+    weight: object
+    regularizer_gradient: dict
+
+
+def window_regularizers(values, prepared, weights, optimized=OPTIMIZED):
+    """Value of every regularizer term over a window and the weighted gradient per map.
+
+    ``values``: the window values of each map (Dr.Jit, as from
+    :func:`predicted_patch`); gradients only for the ``optimized`` maps.
+    Returns ``({term: float}, {map: (n_window,) float64})``.
+    """
+    windows, terms, gradients = {}, {}, {}
+    for term, (name, function) in REGULARIZERS.items():
+        if name not in windows:
+            windows[name] = np.array(dr.detach(values[name]), dtype=np.float64)
+        terms[term], gradient = function(windows[name], prepared.stencils)
+        weight = float(weights.get(term, 0.0))
+        if weight != 0.0 and name in optimized:
+            gradients[name] = gradients.get(name, 0.0) + weight * gradient.ravel()
+    return terms, gradients
+
+
 def patch_losses(params, prepared, config, weights, solve_albedo=True):
-    """Every loss term of a patch as Dr.Jit scalars, the total, and the usable-view weights.
+    """Every loss term of a patch (:class:`PatchLoss`).
 
     See :func:`texel_view_terms` for ``solve_albedo``.
     """
@@ -377,11 +434,6 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True):
     count = dr.maximum(dr.detach(dr.sum(weight)), 1.0)
     terms = {name: dr.sum(term) / (count * len(prepared.observed))
              for name, term in per_view.items()}
-    stencils = prepared.stencils
-    terms["H_magnitude"] = displacement_magnitude(values["displacement"], stencils)
-    terms["H_laplacian"] = displacement_laplacian(values["displacement"], stencils)
-    for name in ("alpha_s", "alpha_ss", "eta"):
-        terms[f"{name}_smoothness"] = neighbourhood_smoothness(values[name], stencils)
     if params.reference is not None:
         valid = prepared.window_valid_jit
         for name in GLOSSY_ALBEDOS:
@@ -389,7 +441,32 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True):
             terms[f"{name}_temporal"] = (dr.sum(valid * dr.square(values[name] - reference))
                                          / max(float(prepared.window_valid.sum()), 1.0))
     total = sum(float(weights.get(name, 0.0)) * terms[name] for name in terms)
-    return terms, total, weight
+    regularizer_terms, gradients = window_regularizers(values, prepared, weights,
+                                                       params.optimized)
+    terms.update(regularizer_terms)
+    total = total + sum(float(weights.get(name, 0.0)) * value
+                        for name, value in regularizer_terms.items())
+    return PatchLoss(terms, total, weight, gradients)
+
+
+def patch_gradients(params, prepared, config, weights, solve_albedo=True):
+    """The loss of a patch with the gradient of its total on every optimized map (:class:`PatchLoss`).
+
+    Dr.Jit's reverse pass differentiates the data and temporal terms; the
+    regularizers' gradients over the window are then added to it. See
+    :func:`texel_view_terms` for ``solve_albedo``.
+    """
+    loss = patch_losses(params, prepared, config, weights, solve_albedo)
+    # with every data weight 0 (a regularizer alone) nothing is attached: not an error
+    dr.backward(loss.total, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
+    Float = type(loss.weight)
+    for name, gradient in loss.regularizer_gradient.items():
+        variable = params.optimizer[name]
+        full = dr.grad(variable)
+        # the window's texels are distinct: no two writes meet
+        dr.scatter_add(full.array, to_jit(Float, gradient, np.float32), prepared.window_index_jit)
+        dr.set_grad(variable, full)
+    return loss
 
 
 def active_weights(config, data_weights=None):
@@ -402,12 +479,17 @@ def active_weights(config, data_weights=None):
     return weights
 
 
+def _scalar(value):
+    """A loss term as a float (Dr.Jit scalars and Python numbers alike)."""
+    return float(value) if isinstance(value, (int, float)) else float(value[0])
+
+
 def optimizer_step(params, prepared, config, weights):
     """One step on one patch; returns ``{term: float}`` with ``total`` and the gradient norm."""
     if len(prepared) == 0:
         return None
-    terms, total, _ = patch_losses(params, prepared, config, weights)
-    dr.backward(total)
+    loss = patch_gradients(params, prepared, config, weights)
+    terms, total = loss.terms, loss.total
     squared = 0.0
     for name in params.optimized:
         squared = squared + dr.sum(dr.square(dr.grad(params.optimizer[name]).array))
@@ -425,8 +507,8 @@ def optimizer_step(params, prepared, config, weights):
         Float = type(dr.grad(params.optimizer[params.optimized[0]]).array)
         params.optimizer.step(grad_scale=dr.opaque(Float, scale))
         params.clamp(config.bounds)
-    record = {name: float(value[0]) for name, value in terms.items()}
-    record["total"] = float(total[0])
+    record = {name: _scalar(value) for name, value in terms.items()}
+    record["total"] = _scalar(total)
     record["gradient_norm"] = norm
     record["skipped"] = 0.0
     return record

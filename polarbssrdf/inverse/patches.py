@@ -20,6 +20,7 @@ import numpy as np
 
 from polarbssrdf._arrays import to_jit
 from polarbssrdf.geometry.atlas import TexelAtlas
+from polarbssrdf.geometry.height import height_frame
 from polarbssrdf.inverse.model import ViewGeometry, jit_types
 from polarbssrdf.inverse.regularizers import HALO, window_stencils
 
@@ -81,6 +82,8 @@ class PreparedPatch:
         The same, flat, as 0/1.
     atlas : TexelAtlas
         The window's atlas (see :func:`window_atlas`).
+    height_frame : DeviceHeightFrame
+        Eq. 25's constants of that atlas on the device (normals from ``H`` at every step).
     stencils : WindowStencils
     texel : UInt32
         Window index of each texel-view's texel.
@@ -101,6 +104,7 @@ class PreparedPatch:
     window_valid: np.ndarray
     window_valid_jit: object
     atlas: TexelAtlas
+    height_frame: object
     stencils: object
     texel: object
     texel_numpy: np.ndarray
@@ -114,7 +118,7 @@ class PreparedPatch:
 
 def prepare_patch(store, atlas, patch):
     """Read a patch's texel-views from ``store`` and prepare them (:class:`PreparedPatch`)."""
-    Float, _, UInt32, _ = jit_types()
+    Float, _, UInt32, TensorXf = jit_types()
     T = atlas.resolution
     rows = slice(max(patch.row0 - HALO, 0), min(patch.row0 + patch.rows + HALO, T))
     cols = slice(max(patch.col0 - HALO, 0), min(patch.col0 + patch.cols + HALO, T))
@@ -125,6 +129,7 @@ def prepare_patch(store, atlas, patch):
     patch_rows = slice(patch.row0 - rows.start, patch.row0 - rows.start + patch.rows)
     patch_cols = slice(patch.col0 - cols.start, patch.col0 - cols.start + patch.cols)
     views = store.read_window(patch.row0, patch.col0, patch.rows, patch.cols)
+    local_atlas = window_atlas(atlas, rows, cols)
     texel_row, texel_col = np.divmod(np.asarray(views.texel, np.int64), T)
     local = (texel_row - rows.start) * (cols.stop - cols.start) + (texel_col - cols.start)
     analyser = np.asarray(views.analyser, np.float32)
@@ -133,7 +138,8 @@ def prepare_patch(store, atlas, patch):
     scale = float(np.mean(2.0 * analyser[:, :, 2])) if len(analyser) else 1.0
     return PreparedPatch(
         patch=patch, window_rows=rows, window_cols=cols, window_index=window_index,
-        window_valid=valid, atlas=window_atlas(atlas, rows, cols),
+        window_valid=valid, atlas=local_atlas,
+        height_frame=height_frame(local_atlas).on_device(TensorXf),
         stencils=window_stencils(valid, patch_rows, patch_cols),
         texel=to_jit(UInt32, local, np.uint32), texel_numpy=local,
         window_index_jit=to_jit(UInt32, window_index, np.uint32),

@@ -5,45 +5,59 @@ from the full maps, so the 5 x 5 neighbourhoods and the Laplacian of the
 patch's texels are the same as on the whole texture (no seams between
 patches). Each term is a mean over the patch's valid texels (see
 :mod:`polarbssrdf.inverse.losses` for why means).
+
+Every regularizer is a quadratic form ``|A x|^2 / n`` of a sparse stencil
+``A``, so each function returns the value and its exact gradient
+``2 A^T A x / n``, computed with separable box filters and shifts on the
+window (NumPy, float64). The optimizer adds these gradients to the ones
+Dr.Jit's reverse pass gives the data terms instead of differentiating the
+stencils inside that pass: there each neighbour read becomes an atomic
+scatter-add, 81 of them per texel (the three 5 x 5 windows, the
+Laplacian), which cost a quarter of a step (bench/RESULTS.md).
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-import drjit as dr
 import numpy as np
-
-from polarbssrdf._arrays import to_jit
+from scipy.ndimage import uniform_filter
 
 HALO = 2
 """Texels around a patch needed by the 5 x 5 smoothness window (eq. 35)."""
 
+BOX = 5
+"""Edge of eq. 35's neighbourhood in texels."""
+
 
 @dataclasses.dataclass(frozen=True)
 class WindowStencils:
-    """Gather indices and weights of a window's neighbourhoods (NumPy, built once per window).
+    """Masks of a window's regularizers (NumPy, built once per window).
 
     Attributes
     ----------
     shape : (rows, cols)
         The window with its halo.
     count : int
-        Number of interior texels.
-    interior : UInt32
-        Flat window indices of the patch's valid texels (where the terms are evaluated).
-    laplacian : list of 4 UInt32
-        The 4-neighbours of each interior texel (clamped at the window edge).
-    box_index, box_weight : lists of 24 UInt32 and Float
-        The 5 x 5 neighbours (centre excluded) and 1 / (valid neighbours) where valid, else 0.
+        Number of interior texels (the patch's valid texels, where the terms are evaluated).
+    interior : (rows, cols) float64
+        1 on the interior texels, else 0.
+    valid : (rows, cols) float64
+        1 on the window's valid texels (the neighbours eq. 35 averages), else 0.
+    neighbours : (rows, cols) float64
+        Number of valid texels in each texel's 5 x 5 neighbourhood, centre excluded (>= 1).
     """
 
     shape: tuple
     count: int
-    interior: object
-    laplacian: list
-    box_index: list
-    box_weight: list
+    interior: np.ndarray
+    valid: np.ndarray
+    neighbours: np.ndarray
+
+
+def _box_sum(values):
+    """Sum over each texel's 5 x 5 neighbourhood, centre excluded, zero outside the window."""
+    return uniform_filter(values, size=BOX, mode="constant", cval=0.0) * (BOX * BOX) - values
 
 
 def window_stencils(valid, patch_rows, patch_cols):
@@ -56,58 +70,92 @@ def window_stencils(valid, patch_rows, patch_cols):
     patch_rows, patch_cols : slice
         Where the patch sits inside the window.
     """
-    rows, cols = valid.shape
-    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
-    inside = np.zeros_like(valid)
-    inside[patch_rows, patch_cols] = True
-    centre = np.flatnonzero(inside & valid)
-    ci, cj = i.ravel()[centre], j.ravel()[centre]
-
-    def flat(di, dj):
-        return np.clip(ci + di, 0, rows - 1) * cols + np.clip(cj + dj, 0, cols - 1)
-
-    laplacian = np.stack([flat(-1, 0), flat(1, 0), flat(0, -1), flat(0, 1)])
-    offsets = [(di, dj) for di in range(-2, 3) for dj in range(-2, 3) if (di, dj) != (0, 0)]
-    box_index = np.stack([flat(di, dj) for di, dj in offsets])
-    in_range = np.stack([(ci + di >= 0) & (ci + di < rows) & (cj + dj >= 0) & (cj + dj < cols)
-                         for di, dj in offsets])
-    box_valid = in_range & valid.ravel()[box_index]
-    counts = np.maximum(box_valid.sum(axis=0), 1)
-    box_weight = (box_valid / counts).astype(np.float32)
-    from polarbssrdf.inverse.model import jit_types
-
-    Float, _, UInt32, _ = jit_types()
-    return WindowStencils((rows, cols), len(centre), to_jit(UInt32, centre, np.uint32),
-                          [to_jit(UInt32, index, np.uint32) for index in laplacian],
-                          [to_jit(UInt32, index, np.uint32) for index in box_index],
-                          [to_jit(Float, weight, np.float32) for weight in box_weight])
+    valid = np.asarray(valid, dtype=bool)
+    interior = np.zeros(valid.shape, np.float64)
+    interior[patch_rows, patch_cols] = 1.0
+    interior *= valid
+    valid_values = valid.astype(np.float64)
+    # rounding: the box filter's running sums leave 1e-15 on integer counts
+    neighbours = np.maximum(np.rint(_box_sum(valid_values)), 1.0)
+    return WindowStencils(valid.shape, int(interior.sum()), interior, valid_values, neighbours)
 
 
-def _count(values, stencils):
-    # opaque: a literal texel count would compile new kernels for every patch
-    return dr.opaque(type(values), max(stencils.count, 1))
+def _as_window(values, stencils):
+    return np.asarray(values, dtype=np.float64).reshape(stencils.shape)
 
 
-def _gather(values, index):
-    return dr.gather(type(values), values, index)
+def _mean_square(residual, stencils):
+    """``(sum r^2 / n, 2 / n)`` over the interior (``r`` already zero elsewhere)."""
+    count = max(stencils.count, 1)
+    return float(np.sum(residual * residual)) / count, 2.0 / count
 
 
 def displacement_magnitude(height, stencils):
-    """``L_Htreg = mean(H^2)`` over the patch's valid texels (eq. 33), mm^2."""
-    H = _gather(height, stencils.interior)
-    return dr.sum(dr.square(H)) / _count(height, stencils)
+    """``L_Htreg = mean(H^2)`` over the patch's valid texels (eq. 33), mm^2, and its gradient.
+
+    Parameters
+    ----------
+    height : (rows, cols) or flat array
+        The window's displacement, mm.
+    stencils : WindowStencils
+
+    Returns
+    -------
+    (value, gradient) : float, (rows, cols) float64
+    """
+    H = _as_window(height, stencils)
+    residual = stencils.interior * H
+    value, scale = _mean_square(residual, stencils)
+    return value, scale * residual
+
+
+def _edge_shift(values, axis, step):
+    """``values`` at each texel's neighbour ``step`` along ``axis``, clamped to the window."""
+    index = np.clip(np.arange(values.shape[axis]) + step, 0, values.shape[axis] - 1)
+    return np.take(values, index, axis=axis)
+
+
+def _edge_shift_transpose(values, axis, step):
+    """Adjoint of :func:`_edge_shift` (``step`` +-1): each texel's value added to its clamped neighbour."""
+    source = np.moveaxis(values, axis, 0)
+    out = np.zeros_like(source)
+    if step == 1:
+        out[1:] += source[:-1]
+        out[-1] += source[-1]
+    else:
+        out[:-1] += source[1:]
+        out[0] += source[0]
+    return np.moveaxis(out, 0, axis)
+
+
+_LAPLACIAN_NEIGHBOURS = ((0, -1), (0, 1), (1, -1), (1, 1))
 
 
 def displacement_laplacian(height, stencils):
-    """``L_Hsreg = mean((lap H)^2)`` with the 5-point Laplacian in texels (eq. 34), mm^2."""
-    H = _gather(height, stencils.interior)
-    neighbours = sum(_gather(height, index) for index in stencils.laplacian)
-    return dr.sum(dr.square(neighbours - 4.0 * H)) / _count(height, stencils)
+    """``L_Hsreg = mean((lap H)^2)`` with the 5-point Laplacian in texels (eq. 34), and its gradient.
+
+    Neighbours beyond the window's edge are clamped to it. Units mm^2;
+    see :func:`displacement_magnitude` for parameters and returns.
+    """
+    H = _as_window(height, stencils)
+    laplacian = sum(_edge_shift(H, axis, step) for axis, step in _LAPLACIAN_NEIGHBOURS) - 4.0 * H
+    residual = stencils.interior * laplacian
+    value, scale = _mean_square(residual, stencils)
+    adjoint = sum(_edge_shift_transpose(residual, axis, step)
+                  for axis, step in _LAPLACIAN_NEIGHBOURS) - 4.0 * residual
+    return value, scale * adjoint
 
 
 def neighbourhood_smoothness(values, stencils):
-    """``mean((p - p_bar)^2)``, ``p_bar`` the mean of the valid 5 x 5 neighbours (eq. 35)."""
-    p = _gather(values, stencils.interior)
-    mean = sum(weight * _gather(values, index)
-               for index, weight in zip(stencils.box_index, stencils.box_weight))
-    return dr.sum(dr.square(p - mean)) / _count(values, stencils)
+    """``mean((p - p_bar)^2)``, ``p_bar`` the mean of the valid 5 x 5 neighbours (eq. 35).
+
+    Returns ``(value, gradient)`` in the map's units squared; see
+    :func:`displacement_magnitude` for parameters.
+    """
+    p = _as_window(values, stencils)
+    mean = _box_sum(stencils.valid * p) / stencils.neighbours
+    residual = stencils.interior * (p - mean)
+    value, scale = _mean_square(residual, stencils)
+    # d p_bar_i / d p_k = valid_k / neighbours_i for k in i's (symmetric) neighbourhood
+    adjoint = residual - stencils.valid * _box_sum(residual / stencils.neighbours)
+    return value, scale * adjoint

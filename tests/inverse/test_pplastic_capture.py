@@ -223,8 +223,8 @@ def test_the_model_at_the_truth_explains_the_pplastic_images(pplastic_capture, s
         prepared = cache.get(patch)
         if len(prepared) == 0:
             continue
-        terms, _, _ = patch_losses(params, prepared, config, active_weights(config),
-                                   solve_albedo=False)
+        terms = patch_losses(params, prepared, config, active_weights(config),
+                             solve_albedo=False).terms
         for name in ("sss", "s", "psi", "phi"):
             chi_square.setdefault(name, []).append(float(terms[name][0]))
     chi_square = {name: float(np.mean(values)) for name, values in chi_square.items()}
