@@ -16,9 +16,10 @@ them, each phase in its own child process so that its peak resident memory
 Cases (``--cases``, comma-separated; default all):
 
 * ``target``: the issue's case: 256 x 256 texels, 16 views, 3 bands, 150
-  epochs (target: observations + fit under 60 s on the 2-core machine), with
-  ``deterministic=True`` (the default: one thread while optimizing) and
-  ``deterministic=False`` (every core);
+  epochs (target: observations + fit under 60 s on the 2-core machine), on
+  every core (the default) and, as the in-process reference, on one Dr.Jit
+  thread; the two runs' maps must be bit-identical (a step's gradient does
+  not depend on the thread count);
 * ``scaling``: textures 128, 256, 512 at 16 views and views 8, 16, 32 at 256
   texels, 10 epochs: the per-epoch time per texel-view shows whether the cost
   is linear in texels x views;
@@ -135,6 +136,7 @@ def child_observe(job: dict) -> dict:
 
 def child_optimize(job: dict) -> dict:
     """``run_polarimetric_fit`` on the store, every optimizer step timed."""
+    import drjit as dr
     import mitsuba as mi
 
     import polarbssrdf  # noqa: F401
@@ -149,7 +151,9 @@ def child_optimize(job: dict) -> dict:
     capture = load_capture(job["capture"], check_images=False)
     store = ObservationStore.open(job["store"])
     atlas = texel_atlas(to_mitsuba(capture.load_mesh()), job["texture"])
-    config = static_config(iterations=job["iterations"], deterministic=job["deterministic"])
+    if job.get("threads"):
+        dr.set_thread_count(int(job["threads"]))
+    config = static_config(iterations=job["iterations"])
     checkpoint = Path(job["checkpoint"])
     checkpoint.unlink(missing_ok=True)  # a checkpoint would resume instead of timing
     steps = []
@@ -183,7 +187,20 @@ def child_optimize(job: dict) -> dict:
             "texel_views": len(store), "texel_view_steps": texel_view_steps,
             "rate": texel_view_steps / epochs_s, "peak_rss_mb": _peak_rss_mb(),
             "rss_before_mb": before, "final_loss": result.history[-1].get("total"),
-            "deterministic": config.deterministic}
+            "threads": dr.thread_count(), "maps_md5": _maps_digest(result.maps)}
+
+
+def _maps_digest(maps):
+    """MD5 of every map's float32 bytes, in name order (equal digests: bit-identical maps)."""
+    import hashlib
+
+    import numpy as np
+
+    digest = hashlib.md5()
+    for name in sorted(maps):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(maps[name], np.float32).tobytes())
+    return digest.hexdigest()
 
 
 def run_child(job: dict) -> dict:
@@ -217,8 +234,8 @@ def row(label, texture, views, observe, optimize) -> str:
             f"{optimize['peak_rss_mb']:>8.0f}")
 
 
-def run_case(workdir, runs, label, views, texture, iterations, deterministic=(True,)):
-    """Observations once, then one optimization per ``deterministic`` setting; prints rows."""
+def run_case(workdir, runs, label, views, texture, iterations, threads=(None,)):
+    """Observations once, then one optimization per thread count (None: every core); prints rows."""
     capture, synth_s = ensure_capture(workdir, views, texture)
     if synth_s:
         print(f"  (synthesized {capture.name} in {synth_s:.0f} s)", flush=True)
@@ -229,11 +246,11 @@ def run_case(workdir, runs, label, views, texture, iterations, deterministic=(Tr
     observe = run_child({"phase": "observe", "capture": str(capture), "texture": texture,
                          "store": str(store)})
     results = []
-    for flag in deterministic:
+    for count in threads:
         optimize = run_child({"phase": "optimize", "capture": str(capture), "texture": texture,
                               "store": str(store), "iterations": iterations,
-                              "deterministic": flag, "checkpoint": str(run / "checkpoint.npz")})
-        name = label if len(deterministic) == 1 else f"{label} det={flag}"
+                              "threads": count, "checkpoint": str(run / "checkpoint.npz")})
+        name = label if len(threads) == 1 else f"{label} {optimize['threads']} thr"
         print(row(name, texture, views, observe, optimize), flush=True)
         results.append({"label": name, "texture": texture, "views": views,
                         "observe": observe, "optimize": optimize})
@@ -244,7 +261,7 @@ def run_case(workdir, runs, label, views, texture, iterations, deterministic=(Tr
 def case_target(workdir, runs, sizes):
     s = sizes["target"]
     results = run_case(workdir, runs, "target", s["views"], s["texture"], s["iterations"],
-                       deterministic=(True, False))
+                       threads=(None, 1))
     for result in results:
         total = result["observe"]["seconds"] + result["optimize"]["seconds"]
         verdict = "met" if total < TARGET_SECONDS else "NOT met"
@@ -257,6 +274,12 @@ def case_target(workdir, runs, sizes):
               f"{result['optimize']['rate']:.3g} /s; peak RSS "
               f"{max(result['observe']['peak_rss_mb'], result['optimize']['peak_rss_mb']):.0f}"
               " MiB", flush=True)
+    if len(results) == 2:
+        every, one = (result["optimize"] for result in results)
+        same = "bit-identical" if every["maps_md5"] == one["maps_md5"] else "DIFFERENT"
+        print(f"summary target: {every['threads']} threads vs 1: fit x"
+              f"{every['seconds'] / one['seconds']:.2f} of the one-thread time; maps {same}",
+              flush=True)
     return results
 
 

@@ -57,3 +57,22 @@ def constant_like(map2d, values):
     if is_numpy(map2d):
         return np.ascontiguousarray(values, dtype=np.float32)
     return to_jit(type(map2d), values, np.float32)
+
+
+def edge_shift(values, axis, step):
+    """NumPy ``values`` at each element's neighbour ``step`` along ``axis``, clamped to the array."""
+    index = np.clip(np.arange(values.shape[axis]) + step, 0, values.shape[axis] - 1)
+    return np.take(values, index, axis=axis)
+
+
+def edge_shift_adjoint(values, axis, step):
+    """Adjoint of :func:`edge_shift` for ``step`` +-1: each value added to its clamped neighbour."""
+    source = np.moveaxis(values, axis, 0)
+    out = np.zeros_like(source)
+    if step == 1:
+        out[1:] += source[:-1]
+        out[-1] += source[-1]
+    else:
+        out[:-1] += source[1:]
+        out[0] += source[0]
+    return np.moveaxis(out, 0, axis)

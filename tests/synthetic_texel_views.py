@@ -53,7 +53,9 @@ class InMemoryStore:
         T = self.texture_size
         r, c = np.divmod(self.views_data.texel, T)
         keep = (r >= row0) & (r < row0 + rows) & (c >= col0) & (c < col0 + cols)
-        return types.SimpleNamespace(**{k: v[keep] for k, v in vars(self.views_data).items()})
+        from polarbssrdf.inverse.observation_store import FIELDS, TexelViews
+
+        return TexelViews(**{name: getattr(self.views_data, name)[keep] for name in FIELDS})
 
     def texel_view_counts(self):
         T = self.texture_size

@@ -7,7 +7,7 @@ import dataclasses
 import drjit as dr
 import numpy as np
 
-from polarbssrdf._arrays import constant_like, neighbour_index, take, to_jit
+from polarbssrdf._arrays import constant_like, edge_shift_adjoint, neighbour_index, take, to_jit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,10 +169,43 @@ def normals_from_height(height, atlas):
     return np.where(frame.valid[..., None], n, frame.fallback)
 
 
-def _device_normals(height, frame):
-    dH_du, dH_dv = height_gradient(height, frame)
-    du = [frame.tangent_u[k] + dH_du * frame.normal[k] for k in range(3)]
-    dv = [frame.tangent_v[k] + dH_dv * frame.normal[k] for k in range(3)]
+def normals_from_slopes(dH_du, dH_dv, normal, tangent_u, tangent_v, orientation):
+    """Eq. 25 from the height's slopes: ``n ~ (t_u + dH/du n0) x (t_v + dH/dv n0)``, unit length.
+
+    Elementwise on Dr.Jit arrays (components as sequences of three): per
+    texel, or per texel-view with the frame gathered to it. ``normal``,
+    ``tangent_u``, ``tangent_v`` and ``orientation`` are the fields of
+    :class:`HeightFrame`. Returns a tuple of three components.
+    """
+    du = [tangent_u[k] + dH_du * normal[k] for k in range(3)]
+    dv = [tangent_v[k] + dH_dv * normal[k] for k in range(3)]
     n = [du[1] * dv[2] - du[2] * dv[1], du[2] * dv[0] - du[0] * dv[2], du[0] * dv[1] - du[1] * dv[0]]
     length = dr.sqrt(dr.maximum(n[0] * n[0] + n[1] * n[1] + n[2] * n[2], 1e-30))
-    return tuple(c * frame.orientation / length for c in n)
+    return tuple(c * orientation / length for c in n)
+
+
+def height_gradient_adjoint(gradient_u, gradient_v):
+    """Adjoint of :func:`height_gradient` (NumPy): the gradient with respect to ``H`` of a
+    function whose gradients with respect to ``dH/du`` and ``dH/dv`` are given.
+
+    Parameters
+    ----------
+    gradient_u, gradient_v : (rows, cols) arrays
+
+    Returns
+    -------
+    (rows, cols) array
+    """
+    rows, cols = gradient_u.shape
+    weighted_u = gradient_u * (0.5 * cols)
+    weighted_u[:, [0, -1]] *= 2.0
+    weighted_v = gradient_v * (0.5 * rows)
+    weighted_v[[0, -1], :] *= 2.0
+    return (edge_shift_adjoint(weighted_u, 1, 1) - edge_shift_adjoint(weighted_u, 1, -1)
+            + edge_shift_adjoint(weighted_v, 0, 1) - edge_shift_adjoint(weighted_v, 0, -1))
+
+
+def _device_normals(height, frame):
+    dH_du, dH_dv = height_gradient(height, frame)
+    return normals_from_slopes(dH_du, dH_dv, frame.normal, frame.tangent_u, frame.tangent_v,
+                               frame.orientation)

@@ -118,13 +118,6 @@ class StaticConfig:
         values (0 turns the test off).
     seed : int
         Seed of the patch order (a resumed run repeats it exactly).
-    deterministic : bool
-        Run Dr.Jit's kernels on one thread while optimizing, so that the
-        atomic scatter-adds of the backward pass add in a fixed order: runs
-        repeat bit for bit and a resumed run ends exactly where an
-        uninterrupted one does. RMSProp amplifies the last-bit differences
-        of a multi-threaded run to about 1e-3 in the maps after a few
-        epochs. ``False`` uses every core.
     polarimetric : bool
         Use ``L_psi`` and ``L_phi``; ``False`` is the ablation without them.
     dynamic : dict
@@ -160,7 +153,6 @@ class StaticConfig:
     min_views: int = 2
     residual_limit: float = 9.0
     seed: int = 0
-    deterministic: bool = True
     polarimetric: bool = True
     coaxial: bool = False
     dynamic: dict = dataclasses.field(default_factory=dict)

@@ -40,7 +40,11 @@ import drjit as dr
 import numpy as np
 
 from polarbssrdf._arrays import to_jit
-from polarbssrdf.geometry.height import normals_from_height
+from polarbssrdf.geometry.height import (
+    height_gradient,
+    height_gradient_adjoint,
+    normals_from_slopes,
+)
 from polarbssrdf.inverse.config import OPTIMIZED
 from polarbssrdf.inverse.losses import DATA_TERMS, data_loss_terms
 from polarbssrdf.inverse.model import half_vector_cosine, jit_types, predict_stokes
@@ -208,26 +212,67 @@ def _per_view(values, prepared):
     return dr.gather(type(values), values, prepared.texel)
 
 
-def window_normals(height_window, prepared):
-    """Per texel-view normals from the window's displacement (eq. 25, shading frame)."""
-    _, Array3f, _, TensorXf = jit_types()
+SLOPES = ("dH_du", "dH_dv")
+"""The per texel-view leaves of the displacement: its slopes, from which eq. 25 builds the normal."""
+
+
+def window_slopes(height_window, prepared):
+    """``(dH/du, dH/dv)`` over the window (flat Float, detached) from its displacement."""
+    _, _, _, TensorXf = jit_types()
     shape = prepared.window_valid.shape
     # off-mesh texels carry no surface: keep their H out of the valid texels' differences
-    nx, ny, nz = normals_from_height(TensorXf(height_window * prepared.window_valid_jit, shape),
-                                     prepared.height_frame)
-    return Array3f(*[_per_view(c.array, prepared) for c in (nx, ny, nz)])
+    height = TensorXf(dr.detach(height_window) * prepared.window_valid_jit, shape)
+    return tuple(slope.array for slope in height_gradient(height, prepared.height_frame))
 
 
-def predicted_patch(params, prepared, config):
+def per_view_normals(dH_du, dH_dv, prepared):
+    """Eq. 25 per texel-view from per texel-view slopes, in the texel's shading frame."""
+    _, Array3f, _, _ = jit_types()
+    frame = prepared.height_frame
+
+    def gathered(maps):
+        return [_per_view(component.array, prepared) for component in maps]
+
+    return Array3f(*normals_from_slopes(dH_du, dH_dv, gathered(frame.normal),
+                                        gathered(frame.tangent_u), gathered(frame.tangent_v),
+                                        _per_view(frame.orientation.array, prepared)))
+
+
+def patch_leaves(params, prepared, differentiable):
+    """Window values of every map, and the per texel-view values the model reads.
+
+    The reverse pass stops at the per texel-view values (its leaves): every
+    map's value gathered to the texel-view, and the displacement's slopes.
+    Their gradients are then summed per texel (:meth:`PreparedPatch.texel_sums`),
+    not scatter-added inside Dr.Jit's kernels, so a step's gradient is the
+    same however many threads run it.
+
+    Returns ``(window, leaves)``: ``{map: Float}`` (detached) and
+    ``{name: Float}``; with ``differentiable``, the leaves of the optimized maps
+    have gradients enabled.
+    """
+    window = {name: dr.detach(_window_values(params.tensor(name), prepared)) for name in OPTIMIZED}
+    leaves = {name: _per_view(window[name], prepared) for name in OPTIMIZED
+              if name != "displacement"}
+    for name, slope in zip(SLOPES, window_slopes(window["displacement"], prepared)):
+        leaves[name] = _per_view(slope, prepared)
+    if differentiable:
+        for name, leaf in leaves.items():
+            source = "displacement" if name in SLOPES else name
+            if source in params.optimized:
+                dr.enable_grad(leaf)
+    return window, leaves
+
+
+def predicted_patch(params, prepared, config, differentiable=False):
     """Per texel-view parameters, normals and the predicted Stokes components of a patch.
 
-    Returns ``(stokes, values, normal, specular_views)`` where ``values`` are the
-    window values of each map (for the regularizers).
+    Returns ``(stokes, window, normal, specular_views, leaves)``: ``window``
+    and ``leaves`` as from :func:`patch_leaves`.
     """
-    values = {name: _window_values(params.tensor(name), prepared) for name in OPTIMIZED}
-    normal = window_normals(values["displacement"], prepared)
-    per_view = {name: _per_view(values[name], prepared) for name in OPTIMIZED
-                if name != "displacement"}
+    window, leaves = patch_leaves(params, prepared, differentiable)
+    normal = per_view_normals(leaves["dH_du"], leaves["dH_dv"], prepared)
+    per_view = {name: leaves[name] for name in OPTIMIZED if name != "displacement"}
     scale = params.amplitude_scale(per_view["eta"])
     for name in GLOSSY_ALBEDOS:
         per_view[name] = per_view[name] * scale
@@ -243,7 +288,7 @@ def predicted_patch(params, prepared, config):
     stokes = predict_stokes(prepared.geometry, normal, per_view["eta"], held["rho_s"],
                             held["alpha_s"], held["rho_ss"], held["alpha_ss"],
                             coaxial=config.coaxial)
-    return stokes, values, normal, specular_views
+    return stokes, window, normal, specular_views, leaves
 
 
 def usable_views(prepared, normal, config):
@@ -275,21 +320,19 @@ def solve_subsurface_albedo(stokes, prepared, weight, previous, temporal=None):
     -------
     (n_bands, n_window) float32 NumPy array.
     """
-    Float = type(weight)
-    n_window = len(prepared.window_index)
     glossy = dr.detach(stokes.glossy)
     unit = dr.detach(stokes.subsurface)
     A90 = 0.5 * (glossy[0] - glossy[1])
     B90 = 0.5 * (unit[0] - unit[1])
-    denominator = dr.zeros(Float, n_window)
-    dr.scatter_add(denominator, weight * dr.square(B90), prepared.texel)
-    denominator = np.array(denominator)
+    products = [weight * dr.square(B90)]
+    products += [weight * B90 * (observed[2] - A90) for observed in prepared.observed]
+    sums = prepared.texel_sums(products)
+    dr.eval(sums)
+    sums = [np.array(total, dtype=np.float64) for total in sums]
+    denominator = sums[0]
+    known = denominator > 1e-30 * max(float(denominator.max(initial=0.0)), 1e-30)
     solved = np.array(previous, dtype=np.float32, copy=True)
-    for band, observed in enumerate(prepared.observed):
-        numerator = dr.zeros(Float, n_window)
-        dr.scatter_add(numerator, weight * B90 * (observed[2] - A90), prepared.texel)
-        numerator = np.array(numerator)
-        known = denominator > 1e-30 * max(float(denominator.max(initial=0.0)), 1e-30)
+    for band, numerator in enumerate(sums[1:]):
         if temporal is None:
             solved[band, known] = np.maximum(numerator[known] / denominator[known], 0.0)
             continue
@@ -335,16 +378,17 @@ def _temporal_albedo_term(params, prepared, weight, config, current):
     return reference, strength, 1.0 / (sigma * sigma * count)
 
 
-def texel_view_terms(params, prepared, config, solve_albedo=True):
+def texel_view_terms(params, prepared, config, solve_albedo=True, differentiable=False):
     """Per texel-view data-term contributions of a patch, summed over bands.
 
     With ``solve_albedo`` the patch's ``rho_sss`` is first re-solved in closed
     form (and stored in ``params``); without, the current maps are used.
 
-    Returns ``(per_view, weight, values)``: ``{term: Float}`` (evaluated), the
-    usable-view weights, and the window values of every map.
+    Returns ``(per_view, weight, window, leaves)``: ``{term: Float}``
+    (evaluated), the usable-view weights, and :func:`patch_leaves`' window
+    values and leaves (with gradients enabled when ``differentiable``).
     """
-    stokes, values, normal, _ = predicted_patch(params, prepared, config)
+    stokes, window, normal, _, leaves = predicted_patch(params, prepared, config, differentiable)
     weight = usable_views(prepared, normal, config)
     # the albedo solve and every loss term read these: compute them once
     dr.eval(stokes.glossy, stokes.subsurface, weight)
@@ -370,7 +414,7 @@ def texel_view_terms(params, prepared, config, solve_albedo=True):
             per_view[name] = per_view[name] + band_terms[name]
     # one kernel for every band and term; reducing each separately would recompute the model
     dr.eval(*per_view.values())
-    return per_view, weight, values
+    return per_view, weight, window, leaves
 
 
 REGULARIZERS = {
@@ -390,82 +434,156 @@ class PatchLoss:
     Attributes
     ----------
     terms : dict
-        Every term: Dr.Jit scalars for the data and temporal terms, floats for the regularizers.
+        Every term: Dr.Jit scalars for the data terms, floats for the
+        temporal terms and the regularizers.
     total : Float
-        The weighted sum (a Dr.Jit scalar); only its data and temporal terms
-        are attached to the maps, the regularizers enter as constants.
+        The weighted sum (a Dr.Jit scalar); only its data terms are attached
+        to the leaves, the other terms enter as constants.
     weight : Float
         The usable-view weight of every texel-view.
-    regularizer_gradient : dict
-        ``map -> (n_window,) float64``: the gradient of the weighted
-        regularizers over the window (:mod:`polarbssrdf.inverse.regularizers`).
+    leaves : dict
+        :func:`patch_leaves`' per texel-view values.
+    window_gradient : dict
+        ``map -> (n_window,) float64``: the gradient of the weighted temporal
+        and regularizer terms over the window (after :func:`patch_gradients`,
+        of the whole total).
+    gradient_norm : float or None
+        Norm of the total's gradient over every optimized map (set by :func:`patch_gradients`).
     """
 
     terms: dict
     total: object
     weight: object
-    regularizer_gradient: dict
+    leaves: dict
+    window_gradient: dict
+    gradient_norm: float = None
 
 
-def window_regularizers(values, prepared, weights, optimized=OPTIMIZED):
+def window_regularizers(windows, prepared, weights, optimized=OPTIMIZED):
     """Value of every regularizer term over a window and the weighted gradient per map.
 
-    ``values``: the window values of each map (Dr.Jit, as from
-    :func:`predicted_patch`); gradients only for the ``optimized`` maps.
-    Returns ``({term: float}, {map: (n_window,) float64})``.
+    ``windows``: ``{map: (n_window,) array}``, the window values; gradients
+    only for the ``optimized`` maps. Returns ``({term: float}, {map: (n_window,) array})``.
     """
-    windows, terms, gradients = {}, {}, {}
-    for term, (name, function) in REGULARIZERS.items():
-        if name not in windows:
-            windows[name] = np.array(dr.detach(values[name]), dtype=np.float64)
-        terms[term], gradient = function(windows[name], prepared.stencils)
+    terms, gradients = {}, {}
+
+    def add(term, name, gradient):
         weight = float(weights.get(term, 0.0))
         if weight != 0.0 and name in optimized:
             gradients[name] = gradients.get(name, 0.0) + weight * gradient.ravel()
+
+    smooth = [(term, name) for term, (name, function) in REGULARIZERS.items()
+              if function is neighbourhood_smoothness]
+    # the 5 x 5 terms filter their maps as one stack
+    values, stack = neighbourhood_smoothness(np.stack([windows[name] for _, name in smooth]),
+                                             prepared.stencils)
+    for (term, name), value, gradient in zip(smooth, values, stack):
+        terms[term] = float(value)
+        add(term, name, gradient)
+    for term, (name, function) in REGULARIZERS.items():
+        if function is not neighbourhood_smoothness:
+            terms[term], gradient = function(windows[name], prepared.stencils)
+            add(term, name, gradient)
+    return {term: terms[term] for term in REGULARIZERS}, gradients
+
+
+def temporal_terms(params, windows, prepared, weights):
+    """The dynamic stage's pulls of ``rho_s`` and ``rho_ss`` toward the static maps (eq. 38).
+
+    ``mean(valid (x - x_static)^2)`` over the window's valid texels, in the
+    optimizer's variables. Returns ``({term: float}, {map: (n_window,) float64})``
+    (weighted gradients), both empty without a reference.
+    """
+    terms, gradients = {}, {}
+    if params.reference is None:
+        return terms, gradients
+    valid = prepared.window_valid.ravel().astype(np.float64)
+    count = max(float(valid.sum()), 1.0)
+    for name in GLOSSY_ALBEDOS:
+        reference = np.array(_window_values(params.reference[name], prepared))
+        difference = valid * (windows[name].astype(np.float64) - reference)
+        term = f"{name}_temporal"
+        terms[term] = float(np.sum(difference * difference)) / count
+        weight = float(weights.get(term, 0.0))
+        if weight != 0.0 and name in params.optimized:
+            gradients[name] = weight * 2.0 * difference / count
     return terms, gradients
 
 
-def patch_losses(params, prepared, config, weights, solve_albedo=True):
+def patch_losses(params, prepared, config, weights, solve_albedo=True, differentiable=False):
     """Every loss term of a patch (:class:`PatchLoss`).
 
-    See :func:`texel_view_terms` for ``solve_albedo``.
+    See :func:`texel_view_terms` for ``solve_albedo`` and ``differentiable``.
     """
-    per_view, weight, values = texel_view_terms(params, prepared, config, solve_albedo)
+    per_view, weight, window, leaves = texel_view_terms(params, prepared, config, solve_albedo,
+                                                        differentiable)
     count = dr.maximum(dr.detach(dr.sum(weight)), 1.0)
     terms = {name: dr.sum(term) / (count * len(prepared.observed))
              for name, term in per_view.items()}
-    if params.reference is not None:
-        valid = prepared.window_valid_jit
-        for name in GLOSSY_ALBEDOS:
-            reference = _window_values(params.reference[name], prepared)
-            terms[f"{name}_temporal"] = (dr.sum(valid * dr.square(values[name] - reference))
-                                         / max(float(prepared.window_valid.sum()), 1.0))
     total = sum(float(weights.get(name, 0.0)) * terms[name] for name in terms)
-    regularizer_terms, gradients = window_regularizers(values, prepared, weights,
-                                                       params.optimized)
-    terms.update(regularizer_terms)
-    total = total + sum(float(weights.get(name, 0.0)) * value
-                        for name, value in regularizer_terms.items())
-    return PatchLoss(terms, total, weight, gradients)
+    windows = {name: np.array(values) for name, values in window.items()}
+    gradients = {}
+    for extra_terms, extra_gradients in (
+            window_regularizers(windows, prepared, weights, params.optimized),
+            temporal_terms(params, windows, prepared, weights)):
+        terms.update(extra_terms)
+        total = total + sum(float(weights.get(name, 0.0)) * value
+                            for name, value in extra_terms.items())
+        for name, gradient in extra_gradients.items():
+            gradients[name] = gradients.get(name, 0.0) + gradient
+    return PatchLoss(terms, total, weight, leaves, gradients)
+
+
+def _leaf_gradients(leaves, prepared):
+    """``{map: (n_window,) float64}``: the reverse pass's gradients summed per texel.
+
+    The slopes' gradients become the displacement's through the adjoint of
+    the central differences (:func:`polarbssrdf.geometry.height.height_gradient_adjoint`).
+    """
+    names = [name for name, leaf in leaves.items() if dr.grad_enabled(leaf)]
+    if not names:
+        return {}
+    gradients = [dr.grad(leaves[name]) for name in names]
+    # the reverse pass in one kernel first: the sums' loop gathers from its results
+    dr.eval(gradients)
+    sums = prepared.texel_sums(gradients)
+    dr.eval(sums)
+    window = {name: np.array(total, dtype=np.float64) for name, total in zip(names, sums)}
+    if SLOPES[0] in window:
+        shape = prepared.window_valid.shape
+        height = height_gradient_adjoint(window.pop(SLOPES[0]).reshape(shape),
+                                         window.pop(SLOPES[1]).reshape(shape))
+        window["displacement"] = (height * prepared.window_valid).ravel()
+    return window
 
 
 def patch_gradients(params, prepared, config, weights, solve_albedo=True):
     """The loss of a patch with the gradient of its total on every optimized map (:class:`PatchLoss`).
 
-    Dr.Jit's reverse pass differentiates the data and temporal terms; the
-    regularizers' gradients over the window are then added to it. See
+    Dr.Jit's reverse pass differentiates the data terms down to the per
+    texel-view leaves; their gradients are summed per texel, the temporal
+    terms' and the regularizers' own gradients added, and the result set as
+    the gradient of every optimized map (zero outside the window). See
     :func:`texel_view_terms` for ``solve_albedo``.
     """
-    loss = patch_losses(params, prepared, config, weights, solve_albedo)
+    loss = patch_losses(params, prepared, config, weights, solve_albedo, differentiable=True)
     # with every data weight 0 (a regularizer alone) nothing is attached: not an error
     dr.backward(loss.total, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
+    gradients = _leaf_gradients(loss.leaves, prepared)
+    for name, gradient in loss.window_gradient.items():
+        gradients[name] = gradients.get(name, 0.0) + gradient
     Float = type(loss.weight)
-    for name, gradient in loss.regularizer_gradient.items():
-        variable = params.optimizer[name]
-        full = dr.grad(variable)
-        # the window's texels are distinct: no two writes meet
-        dr.scatter_add(full.array, to_jit(Float, gradient, np.float32), prepared.window_index_jit)
-        dr.set_grad(variable, full)
+    T = params.resolution
+    squared = 0.0
+    for name in params.optimized:
+        window = np.asarray(gradients.get(name, np.zeros(len(prepared.window_index))))
+        squared += float(np.sum(window * window))
+        full = dr.zeros(Float, T * T)
+        # the window's texels are distinct: a plain scatter
+        dr.scatter(full, to_jit(Float, window, np.float32), prepared.window_index_jit)
+        dr.set_grad(params.optimizer[name], params.TensorXf(full, (T, T)))
+    loss.window_gradient = gradients
+    loss.gradient_norm = float(np.sqrt(squared))
     return loss
 
 
@@ -489,11 +607,7 @@ def optimizer_step(params, prepared, config, weights):
     if len(prepared) == 0:
         return None
     loss = patch_gradients(params, prepared, config, weights)
-    terms, total = loss.terms, loss.total
-    squared = 0.0
-    for name in params.optimized:
-        squared = squared + dr.sum(dr.square(dr.grad(params.optimizer[name]).array))
-    norm = float(dr.sqrt(squared)[0]) if params.optimized else 0.0
+    terms, total, norm = loss.terms, loss.total, loss.gradient_norm
     if not np.isfinite(norm):
         # a non-finite gradient would turn texels into NaN (and the clamp into a bound): skip
         for name in params.optimized:

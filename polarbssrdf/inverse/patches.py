@@ -16,6 +16,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 
+import drjit as dr
 import numpy as np
 
 from polarbssrdf._arrays import to_jit
@@ -86,9 +87,11 @@ class PreparedPatch:
         Eq. 25's constants of that atlas on the device (normals from ``H`` at every step).
     stencils : WindowStencils
     texel : UInt32
-        Window index of each texel-view's texel.
+        Window index of each texel-view's texel (texel-views are ordered by it).
     texel_numpy : (N,) int64
         The same, in NumPy.
+    view_start, view_count : UInt32
+        Per window texel: its first texel-view and how many it has.
     geometry : ViewGeometry
     observed : list of tuple of 4 Float
         ``(I0, I45, I90, I135)`` per band.
@@ -108,12 +111,39 @@ class PreparedPatch:
     stencils: object
     texel: object
     texel_numpy: np.ndarray
+    view_start: object
+    view_count: object
     geometry: ViewGeometry
     observed: list
     image_scale: float
 
     def __len__(self):
         return len(self.texel_numpy)
+
+    def texel_sums(self, values):
+        """Per window texel, the sums of per texel-view ``values`` over its texel-views.
+
+        ``values``: sequence of Float of length N; returns a tuple of Float of
+        the window's length. Each texel adds its own texel-views in order, so
+        the sums do not depend on how Dr.Jit shares the kernel between
+        threads (a scatter-add's do).
+        """
+        values = tuple(values)
+        Float = type(values[0])
+        UInt32 = type(self.view_start)
+        n_window = len(self.window_index)
+
+        def more(k, sums):
+            return k < self.view_count
+
+        def add(k, sums):
+            index = self.view_start + k
+            return k + 1, tuple(total + dr.gather(Float, v, index) for total, v in zip(sums, values))
+
+        _, sums = dr.while_loop(state=(dr.zeros(UInt32, n_window),
+                                       tuple(dr.zeros(Float, n_window) for _ in values)),
+                                cond=more, body=add)
+        return sums
 
 
 def prepare_patch(store, atlas, patch):
@@ -132,6 +162,10 @@ def prepare_patch(store, atlas, patch):
     local_atlas = window_atlas(atlas, rows, cols)
     texel_row, texel_col = np.divmod(np.asarray(views.texel, np.int64), T)
     local = (texel_row - rows.start) * (cols.stop - cols.start) + (texel_col - cols.start)
+    order = np.argsort(local, kind="stable")
+    views, local = views.take(order), local[order]
+    view_count = np.bincount(local, minlength=len(window_index))
+    view_start = np.concatenate([[0], np.cumsum(view_count)[:-1]])
     analyser = np.asarray(views.analyser, np.float32)
     observed = [tuple(to_jit(Float, analyser[:, band, k]) for k in range(4))
                 for band in range(analyser.shape[1])]
@@ -142,6 +176,8 @@ def prepare_patch(store, atlas, patch):
         height_frame=height_frame(local_atlas).on_device(TensorXf),
         stencils=window_stencils(valid, patch_rows, patch_cols),
         texel=to_jit(UInt32, local, np.uint32), texel_numpy=local,
+        view_start=to_jit(UInt32, view_start, np.uint32),
+        view_count=to_jit(UInt32, view_count, np.uint32),
         window_index_jit=to_jit(UInt32, window_index, np.uint32),
         window_valid_jit=to_jit(Float, valid.ravel(), np.float32),
         geometry=ViewGeometry.from_texel_views(views), observed=observed,

@@ -9,7 +9,7 @@ patches). Each term is a mean over the patch's valid texels (see
 Every regularizer is a quadratic form ``|A x|^2 / n`` of a sparse stencil
 ``A``, so each function returns the value and its exact gradient
 ``2 A^T A x / n``, computed with separable box filters and shifts on the
-window (NumPy, float64). The optimizer adds these gradients to the ones
+window (NumPy). The optimizer adds these gradients to the ones
 Dr.Jit's reverse pass gives the data terms instead of differentiating the
 stencils inside that pass: there each neighbour read becomes an atomic
 scatter-add, 81 of them per texel (the three 5 x 5 windows, the
@@ -22,6 +22,8 @@ import dataclasses
 
 import numpy as np
 from scipy.ndimage import uniform_filter
+
+from polarbssrdf._arrays import edge_shift, edge_shift_adjoint
 
 HALO = 2
 """Texels around a patch needed by the 5 x 5 smoothness window (eq. 35)."""
@@ -40,11 +42,11 @@ class WindowStencils:
         The window with its halo.
     count : int
         Number of interior texels (the patch's valid texels, where the terms are evaluated).
-    interior : (rows, cols) float64
+    interior : (rows, cols) float32
         1 on the interior texels, else 0.
-    valid : (rows, cols) float64
+    valid : (rows, cols) float32
         1 on the window's valid texels (the neighbours eq. 35 averages), else 0.
-    neighbours : (rows, cols) float64
+    neighbours : (rows, cols) float32
         Number of valid texels in each texel's 5 x 5 neighbourhood, centre excluded (>= 1).
     """
 
@@ -56,8 +58,12 @@ class WindowStencils:
 
 
 def _box_sum(values):
-    """Sum over each texel's 5 x 5 neighbourhood, centre excluded, zero outside the window."""
-    return uniform_filter(values, size=BOX, mode="constant", cval=0.0) * (BOX * BOX) - values
+    """Sum over each texel's 5 x 5 neighbourhood, centre excluded, zero outside the window.
+
+    ``values``: (..., rows, cols); leading axes are separate maps.
+    """
+    size = (1,) * (values.ndim - 2) + (BOX, BOX)
+    return uniform_filter(values, size=size, mode="constant", cval=0.0) * (BOX * BOX) - values
 
 
 def window_stencils(valid, patch_rows, patch_cols):
@@ -71,23 +77,34 @@ def window_stencils(valid, patch_rows, patch_cols):
         Where the patch sits inside the window.
     """
     valid = np.asarray(valid, dtype=bool)
-    interior = np.zeros(valid.shape, np.float64)
+    # float32 masks (0, 1 and counts are exact) keep float32 maps in float32
+    interior = np.zeros(valid.shape, np.float32)
     interior[patch_rows, patch_cols] = 1.0
     interior *= valid
-    valid_values = valid.astype(np.float64)
+    valid_values = valid.astype(np.float32)
     # rounding: the box filter's running sums leave 1e-15 on integer counts
-    neighbours = np.maximum(np.rint(_box_sum(valid_values)), 1.0)
+    neighbours = np.maximum(np.rint(_box_sum(valid_values)), 1.0).astype(np.float32)
     return WindowStencils(valid.shape, int(interior.sum()), interior, valid_values, neighbours)
 
 
 def _as_window(values, stencils):
-    return np.asarray(values, dtype=np.float64).reshape(stencils.shape)
+    """``values`` as (..., rows, cols) maps: flat windows are reshaped; float32 stays float32."""
+    values = np.asarray(values)
+    if values.dtype not in (np.float32, np.float64):
+        values = values.astype(np.float64)
+    if values.shape[-2:] == tuple(stencils.shape):
+        return values
+    return values.reshape(values.shape[:-1] + tuple(stencils.shape))
 
 
 def _mean_square(residual, stencils):
-    """``(sum r^2 / n, 2 / n)`` over the interior (``r`` already zero elsewhere)."""
+    """``(sum r^2 / n, 2 / n)`` over the interior (``r`` already zero elsewhere).
+
+    The sum is a float for one map, an array over the leading axes of a stack.
+    """
     count = max(stencils.count, 1)
-    return float(np.sum(residual * residual)) / count, 2.0 / count
+    total = np.sum(residual * residual, axis=(-2, -1), dtype=np.float64) / count
+    return (float(total) if total.ndim == 0 else total), 2.0 / count
 
 
 def displacement_magnitude(height, stencils):
@@ -96,36 +113,17 @@ def displacement_magnitude(height, stencils):
     Parameters
     ----------
     height : (rows, cols) or flat array
-        The window's displacement, mm.
+        The window's displacement, mm (float32 or float64; the gradient has its precision).
     stencils : WindowStencils
 
     Returns
     -------
-    (value, gradient) : float, (rows, cols) float64
+    (value, gradient) : float, (rows, cols) array
     """
     H = _as_window(height, stencils)
     residual = stencils.interior * H
     value, scale = _mean_square(residual, stencils)
     return value, scale * residual
-
-
-def _edge_shift(values, axis, step):
-    """``values`` at each texel's neighbour ``step`` along ``axis``, clamped to the window."""
-    index = np.clip(np.arange(values.shape[axis]) + step, 0, values.shape[axis] - 1)
-    return np.take(values, index, axis=axis)
-
-
-def _edge_shift_transpose(values, axis, step):
-    """Adjoint of :func:`_edge_shift` (``step`` +-1): each texel's value added to its clamped neighbour."""
-    source = np.moveaxis(values, axis, 0)
-    out = np.zeros_like(source)
-    if step == 1:
-        out[1:] += source[:-1]
-        out[-1] += source[-1]
-    else:
-        out[:-1] += source[1:]
-        out[0] += source[0]
-    return np.moveaxis(out, 0, axis)
 
 
 _LAPLACIAN_NEIGHBOURS = ((0, -1), (0, 1), (1, -1), (1, 1))
@@ -138,10 +136,10 @@ def displacement_laplacian(height, stencils):
     see :func:`displacement_magnitude` for parameters and returns.
     """
     H = _as_window(height, stencils)
-    laplacian = sum(_edge_shift(H, axis, step) for axis, step in _LAPLACIAN_NEIGHBOURS) - 4.0 * H
+    laplacian = sum(edge_shift(H, axis, step) for axis, step in _LAPLACIAN_NEIGHBOURS) - 4.0 * H
     residual = stencils.interior * laplacian
     value, scale = _mean_square(residual, stencils)
-    adjoint = sum(_edge_shift_transpose(residual, axis, step)
+    adjoint = sum(edge_shift_adjoint(residual, axis, step)
                   for axis, step in _LAPLACIAN_NEIGHBOURS) - 4.0 * residual
     return value, scale * adjoint
 
@@ -150,7 +148,8 @@ def neighbourhood_smoothness(values, stencils):
     """``mean((p - p_bar)^2)``, ``p_bar`` the mean of the valid 5 x 5 neighbours (eq. 35).
 
     Returns ``(value, gradient)`` in the map's units squared; see
-    :func:`displacement_magnitude` for parameters.
+    :func:`displacement_magnitude` for parameters. ``values`` may also be a
+    stack of maps (..., rows, cols); the values are then an array.
     """
     p = _as_window(values, stencils)
     mean = _box_sum(stencils.valid * p) / stencils.neighbours

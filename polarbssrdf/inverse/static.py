@@ -10,7 +10,10 @@ patch repeats it ``min_steps_per_epoch`` times) and takes one optimizer step
 on it (:mod:`polarbssrdf.inverse.optimize`). After every
 epoch the maps, the optimizer state and the loss history are checkpointed
 atomically, so a killed run resumes at the last finished epoch and ends
-with the same maps as an uninterrupted one.
+with the same maps as an uninterrupted one. A step's gradient does not
+depend on how many threads Dr.Jit runs it on (its per-texel sums are taken
+in a fixed order, see :func:`polarbssrdf.inverse.optimize.patch_leaves`), so
+runs repeat bit for bit on any number of cores.
 
 Confidence: ``min(1, n / 8)`` for a texel with ``n`` usable texel-views
 (view and light cosines above ``min_cosine`` with the final normals), 0
@@ -22,7 +25,6 @@ texels off the mesh) take the values of their confident neighbours
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import io
 import json
@@ -140,20 +142,6 @@ def epoch_noise(config, history):
     return float(max(config.photometric_noise, previous * np.sqrt(max(chi_square, 0.0))))
 
 
-@contextlib.contextmanager
-def kernel_threads(count):
-    """Run Dr.Jit's LLVM kernels on ``count`` threads inside the block (``None``: unchanged)."""
-    if count is None:
-        yield
-        return
-    previous = dr.thread_count()
-    dr.set_thread_count(count)
-    try:
-        yield
-    finally:
-        dr.set_thread_count(previous)
-
-
 def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, weights=None,
                   description=STAGE):
     """Run the epochs of a polarimetric stage (resuming from ``checkpoint`` when it exists).
@@ -172,9 +160,8 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
         if first > config.iterations:
             raise ValueError(f"checkpoint {checkpoint} holds {first} epochs, more than the "
                              f"{config.iterations} asked for")
-    with kernel_threads(1 if config.deterministic else None), \
-            tqdm(total=config.iterations, initial=first, desc=description, unit="epoch",
-                 disable=not progress) as bar:
+    with tqdm(total=config.iterations, initial=first, desc=description, unit="epoch",
+              disable=not progress) as bar:
         for epoch in range(first, config.iterations):
             params.scale_learning_rates(
                 config.final_learning_rate ** (epoch / max(config.iterations - 1, 1)))
@@ -208,7 +195,7 @@ def texel_statistics(params, cache, patches, config):
         prepared = cache.get(patch)
         if len(prepared) == 0:
             continue
-        per_view, weight, _ = texel_view_terms(params, prepared, config, solve_albedo=False)
+        per_view, weight, _, _ = texel_view_terms(params, prepared, config, solve_albedo=False)
         texel = prepared.window_index[prepared.texel_numpy]
         np.add.at(counts, texel, np.array(weight))
         residual = (np.array(per_view["sss"]) + np.array(per_view["s"])) / len(prepared.observed)
