@@ -35,7 +35,7 @@ import drjit as dr
 import numpy as np
 
 from polarbssrdf._arrays import to_jit
-from polarbssrdf.optics.mueller import coordinate_system, stokes_basis, stokes_basis_rotation_angle
+from polarbssrdf.optics.mueller import coordinate_system, stokes_basis, stokes_basis_rotation_sincos
 from polarbssrdf.optics.pbrdf import pbrdf_mueller
 from polarbssrdf.optics.stokes import polarization_images
 
@@ -103,18 +103,19 @@ def shading_frame(normal):
     return s, t, normal
 
 
-def _stokes_columns(M, irradiance, field_angle, camera_angle, cos_light):
+def _stokes_columns(M, irradiance, field_rotation, camera_rotation, cos_light):
     """Linear Stokes ``(S0, S1, S2)`` in the camera frame of light polarized along its field.
 
-    ``C(camera_angle) M C(field_angle) [E, E, 0, 0] cos``: only the first two
-    columns of ``M`` meet fully polarized light.
+    ``C(camera) M C(field) [E, E, 0, 0] cos``: only the first two columns of
+    ``M`` meet fully polarized light. The rotations are ``(sin 2 theta,
+    cos 2 theta)`` pairs (:func:`polarbssrdf.optics.mueller.stokes_basis_rotation_sincos`).
     """
-    s_in, c_in = dr.sincos(2.0 * field_angle)
+    s_in, c_in = field_rotation
     # incident Stokes in Mitsuba's basis of the incident beam: C(angle) [1, 1, 0, 0]
     incident = (1.0, c_in, -s_in)
     column = [M[row][0] * incident[0] + M[row][1] * incident[1] + M[row][2] * incident[2]
               for row in range(3)]
-    s_out, c_out = dr.sincos(2.0 * camera_angle)
+    s_out, c_out = camera_rotation
     scale = irradiance * dr.maximum(cos_light, 0.0)
     return (scale * column[0],
             scale * (c_out * column[1] + s_out * column[2]),
@@ -161,14 +162,15 @@ def predict_stokes(geometry, normal, eta, rho_s, alpha_s, rho_ss, alpha_ss, coax
     wo = _to_local(to_light, frame)  # light arrives along -wo
     field = _to_local(light_field, frame)
     camera_basis = _to_local(geometry.camera_basis, frame)
-    field_angle = stokes_basis_rotation_angle(-wo, field, stokes_basis(-wo))
-    camera_angle = stokes_basis_rotation_angle(wi, stokes_basis(wi), camera_basis)
+    field_rotation = stokes_basis_rotation_sincos(-wo, field, stokes_basis(-wo))
+    camera_rotation = stokes_basis_rotation_sincos(wi, stokes_basis(wi), camera_basis)
     glossy = pbrdf_mueller(wi, wo, eta, rho_s, alpha_s, rho_ss, alpha_ss, 0.0, subsurface=False)
     subsurface = pbrdf_mueller(wi, wo, eta, 0.0, 1.0, 0.0, 1.0, 1.0, specular=False,
                                single_scattering=False)
     return PredictedStokes(
-        glossy=_stokes_columns(glossy, geometry.irradiance, field_angle, camera_angle, wo.z),
-        subsurface=_stokes_columns(subsurface, geometry.irradiance, field_angle, camera_angle, wo.z))
+        glossy=_stokes_columns(glossy, geometry.irradiance, field_rotation, camera_rotation, wo.z),
+        subsurface=_stokes_columns(subsurface, geometry.irradiance, field_rotation, camera_rotation,
+                                   wo.z))
 
 
 def half_vector_cosine(geometry, normal):

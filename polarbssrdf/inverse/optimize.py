@@ -204,7 +204,7 @@ class MapParameters:
 
 
 def _window_values(tensor, prepared):
-    """Flat Float of a map over the patch's window (differentiable gather)."""
+    """Flat Float of a map over the patch's window."""
     return dr.gather(type(tensor.array), tensor.array, prepared.window_index_jit)
 
 
@@ -449,6 +449,9 @@ class PatchLoss:
         of the whole total).
     gradient_norm : float or None
         Norm of the total's gradient over every optimized map (set by :func:`patch_gradients`).
+    dropped_views : int
+        Texel-views left out of the gradient because theirs was not finite
+        (set by :func:`patch_gradients`).
     """
 
     terms: dict
@@ -457,6 +460,7 @@ class PatchLoss:
     leaves: dict
     window_gradient: dict
     gradient_norm: float = None
+    dropped_views: int = 0
 
 
 def window_regularizers(windows, prepared, weights, optimized=OPTIMIZED):
@@ -535,17 +539,26 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True, different
 
 
 def _leaf_gradients(leaves, prepared):
-    """``{map: (n_window,) float64}``: the reverse pass's gradients summed per texel.
+    """The reverse pass's gradients summed per texel, and how many texel-views were dropped.
 
-    The slopes' gradients become the displacement's through the adjoint of
-    the central differences (:func:`polarbssrdf.geometry.height.height_gradient_adjoint`).
+    Returns ``({map: (n_window,) float64}, dropped)``. A texel-view whose
+    gradient is not finite (a singular configuration of the model) is left
+    out of the sums, and counted, rather than turning its patch's step into
+    NaN. The slopes' gradients become the displacement's through the adjoint
+    of the central differences
+    (:func:`polarbssrdf.geometry.height.height_gradient_adjoint`).
     """
     names = [name for name, leaf in leaves.items() if dr.grad_enabled(leaf)]
     if not names:
-        return {}
+        return {}, 0
     gradients = [dr.grad(leaves[name]) for name in names]
+    finite = dr.isfinite(gradients[0])
+    for gradient in gradients[1:]:
+        finite &= dr.isfinite(gradient)
+    gradients = [dr.select(finite, gradient, 0.0) for gradient in gradients]
     # the reverse pass in one kernel first: the sums' loop gathers from its results
-    dr.eval(gradients)
+    dr.eval(gradients, finite)
+    dropped = len(prepared) - int(dr.count(finite)[0])
     sums = prepared.texel_sums(gradients)
     dr.eval(sums)
     window = {name: np.array(total, dtype=np.float64) for name, total in zip(names, sums)}
@@ -554,7 +567,7 @@ def _leaf_gradients(leaves, prepared):
         height = height_gradient_adjoint(window.pop(SLOPES[0]).reshape(shape),
                                          window.pop(SLOPES[1]).reshape(shape))
         window["displacement"] = (height * prepared.window_valid).ravel()
-    return window
+    return window, dropped
 
 
 def patch_gradients(params, prepared, config, weights, solve_albedo=True):
@@ -569,7 +582,7 @@ def patch_gradients(params, prepared, config, weights, solve_albedo=True):
     loss = patch_losses(params, prepared, config, weights, solve_albedo, differentiable=True)
     # with every data weight 0 (a regularizer alone) nothing is attached: not an error
     dr.backward(loss.total, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
-    gradients = _leaf_gradients(loss.leaves, prepared)
+    gradients, loss.dropped_views = _leaf_gradients(loss.leaves, prepared)
     for name, gradient in loss.window_gradient.items():
         gradients[name] = gradients.get(name, 0.0) + gradient
     Float = type(loss.weight)
@@ -613,7 +626,8 @@ def optimizer_step(params, prepared, config, weights):
         for name in params.optimized:
             dr.clear_grad(params.optimizer[name])
         record = {name: float("nan") for name in terms}
-        record.update(total=float("nan"), gradient_norm=norm, skipped=1.0)
+        record.update(total=float("nan"), gradient_norm=norm, skipped=1.0,
+                      dropped_views=float(loss.dropped_views))
         return record
     scale = min(1.0, config.gradient_clip / norm) if norm > 0 and config.gradient_clip > 0 else 1.0
     if params.optimized:
@@ -625,4 +639,5 @@ def optimizer_step(params, prepared, config, weights):
     record["total"] = _scalar(total)
     record["gradient_norm"] = norm
     record["skipped"] = 0.0
+    record["dropped_views"] = float(loss.dropped_views)
     return record

@@ -114,13 +114,15 @@ def load_checkpoint(path, params, fingerprint=""):
 
 
 def _epoch_summary(records):
-    """Mean of each loss term over an epoch's steps (skipped steps counted, not averaged)."""
+    """Mean of each loss term over an epoch's steps (skipped steps and dropped texel-views
+    counted, not averaged)."""
     records = [r for r in records if r is not None]
     if not records:
         return {}
     taken = [r for r in records if not r.get("skipped")] or records
     summary = {key: float(np.mean([r[key] for r in taken])) for key in records[0]}
-    summary["skipped"] = float(sum(r.get("skipped", 0.0) for r in records))
+    for key in ("skipped", "dropped_views"):
+        summary[key] = float(sum(r.get(key, 0.0) for r in records))
     return summary
 
 

@@ -115,6 +115,40 @@ def stokes_basis_rotation_angle(forward, basis_current, basis_target):
     return dr.select(flip, -theta, theta)
 
 
+def stokes_basis_rotation_sincos(forward, basis_current, basis_target):
+    """``(sin 2 theta, cos 2 theta)`` of :func:`stokes_basis_rotation_angle`, without the angle.
+
+    A Stokes rotation needs only these (eq. 4). With ``|c| |t| cos theta =
+    c . t`` and ``|c| |t| sin theta = forward . (c x t)`` they are rational in
+    the basis vectors, so their derivatives are finite everywhere; the
+    angle's ``asin`` has an infinite derivative where the two bases coincide
+    (a texel-view there turned a whole patch's gradient into NaN). A
+    vanishing basis vector (a direction along the normal has no plane of
+    incidence) gives ``(0, 0)``.
+
+    Parameters
+    ----------
+    forward : Array3f
+        Unit direction of travel.
+    basis_current, basis_target : Array3f
+        Basis vectors perpendicular to ``forward`` (any length).
+    """
+    cos_theta = dr.dot(basis_current, basis_target)
+    sin_theta = dr.dot(forward, dr.cross(basis_current, basis_target))
+    scale = 1.0 / dr.maximum(dr.squared_norm(basis_current) * dr.squared_norm(basis_target), 1e-30)
+    return (2.0 * sin_theta * cos_theta * scale,
+            (dr.square(cos_theta) - dr.square(sin_theta)) * scale)
+
+
+def rotator_sincos(sin_2theta, cos_2theta, Matrix=None):
+    """:func:`rotator` from ``sin 2 theta`` and ``cos 2 theta`` (see :func:`stokes_basis_rotation_sincos`)."""
+    Matrix = Matrix or matrix_type_for(cos_2theta)
+    return Matrix(1, 0, 0, 0,
+                  0, cos_2theta, sin_2theta, 0,
+                  0, -sin_2theta, cos_2theta, 0,
+                  0, 0, 0, 1)
+
+
 def rotate_stokes_basis(forward, basis_current, basis_target, Matrix=None):
     """Mueller matrix re-expressing a Stokes vector from one basis in another.
 
@@ -125,7 +159,8 @@ def rotate_stokes_basis(forward, basis_current, basis_target, Matrix=None):
     basis_current, basis_target : Array3f
         Unit basis vectors, both perpendicular to ``forward``.
     """
-    return rotator(stokes_basis_rotation_angle(forward, basis_current, basis_target), Matrix)
+    return rotator_sincos(*stokes_basis_rotation_sincos(forward, basis_current, basis_target),
+                          Matrix)
 
 
 def rotate_mueller_basis(M, in_forward, in_basis_current, in_basis_target,
@@ -135,7 +170,8 @@ def rotate_mueller_basis(M, in_forward, in_basis_current, in_basis_target,
     ``R_out * M * R_in^T``; same contract as ``mitsuba.mueller.rotate_mueller_basis``.
     """
     Matrix = type(M)
-    theta_in = stokes_basis_rotation_angle(in_forward, in_basis_current, in_basis_target)
-    theta_out = stokes_basis_rotation_angle(out_forward, out_basis_current, out_basis_target)
+    sin_in, cos_in = stokes_basis_rotation_sincos(in_forward, in_basis_current, in_basis_target)
+    sin_out, cos_out = stokes_basis_rotation_sincos(out_forward, out_basis_current,
+                                                    out_basis_target)
     # C(theta)^T = C(-theta)
-    return rotator(theta_out, Matrix) * M * rotator(-theta_in, Matrix)
+    return rotator_sincos(sin_out, cos_out, Matrix) * M * rotator_sincos(-sin_in, cos_in, Matrix)

@@ -43,7 +43,7 @@ from polarbssrdf.optics.microfacet import microfacet_reflection_term
 from polarbssrdf.optics.mueller import (
     rotate_mueller_basis,
     stokes_basis,
-    stokes_basis_rotation_angle,
+    stokes_basis_rotation_sincos,
 )
 
 _COLLINEAR_EPSILON = 1e-12  # squared norm of a cross product of unit vectors
@@ -137,9 +137,8 @@ def subsurface_entry_stokes_row(wo_hat, eta):
     tuple of 4 arrays
     """
     T_plus, T_minus = plus_minus(*fresnel_transmittance(wo_hat.z, eta))
-    angle = stokes_basis_rotation_angle(-wo_hat, _normal_plane_axis(-wo_hat),
+    s, c = stokes_basis_rotation_sincos(-wo_hat, _normal_plane_axis(-wo_hat),
                                         stokes_basis(-wo_hat))
-    s, c = dr.sincos(2.0 * angle)
     # Row of [T+, T-, 0, 0] . C(angle)^T
     return (T_plus, T_minus * c, -T_minus * s, 0.0 * T_plus)
 
@@ -156,9 +155,8 @@ def subsurface_exit_stokes_column(wi_hat, eta):
     tuple of 4 arrays
     """
     T_plus, T_minus = plus_minus(*fresnel_transmittance(wi_hat.z, eta))
-    angle = stokes_basis_rotation_angle(wi_hat, _normal_plane_axis(wi_hat),
+    s, c = stokes_basis_rotation_sincos(wi_hat, _normal_plane_axis(wi_hat),
                                         stokes_basis(wi_hat))
-    s, c = dr.sincos(2.0 * angle)
     # C(angle) . [T+, T-, 0, 0]^T
     return (T_plus * dr.inv_pi, T_minus * c * dr.inv_pi, -T_minus * s * dr.inv_pi,
             0.0 * T_plus)

@@ -185,3 +185,27 @@ def test_regularizer_gradients_match_central_differences_at_every_texel(name):
                                - function(values - shift, stencils)[0]) / (2 * step)
     assert np.count_nonzero(gradient) > values.size // 3  # the halo moves too
     np.testing.assert_allclose(gradient, numeric, atol=1e-7 * np.abs(numeric).max())
+
+
+def test_a_texel_view_with_a_non_finite_gradient_is_dropped_not_the_step(problem):
+    """One singular texel-view must not turn its patch's gradient into NaN."""
+    from polarbssrdf.inverse.optimize import _leaf_gradients
+
+    atlas, store, start, rho_sss, config, prepared = problem
+    params = _params(start, rho_sss, config)
+    loss = patch_losses(params, prepared, config, active_weights(config), solve_albedo=False,
+                        differentiable=True)
+    dr.backward(loss.total)
+    clean, dropped = _leaf_gradients(loss.leaves, prepared)
+    assert dropped == 0
+    leaf = loss.leaves["eta"]
+    poisoned = np.array(dr.grad(leaf))
+    poisoned[5] = np.nan
+    dr.set_grad(leaf, type(leaf)(poisoned))
+    gradients, dropped = _leaf_gradients(loss.leaves, prepared)
+    assert dropped == 1
+    texel = prepared.texel_numpy[5]
+    for name, window in gradients.items():
+        assert np.isfinite(window).all(), name
+    others = np.arange(len(prepared.window_index)) != texel
+    np.testing.assert_array_equal(gradients["eta"][others], clean["eta"][others])

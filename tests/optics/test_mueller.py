@@ -99,3 +99,37 @@ def test_rotation_preserves_degree_of_polarization(rng):
     s = rotator(theta) @ mi.Vector4f(1.0, 0.6, 0.3, 0.1)
     dop = np.sqrt(np.array(s[1]) ** 2 + np.array(s[2]) ** 2 + np.array(s[3]) ** 2)
     np.testing.assert_allclose(dop, np.sqrt(0.46), rtol=1e-6)
+
+
+def test_rotation_sincos_equals_the_angle_and_has_finite_derivatives_where_bases_coincide(rng):
+    """``(sin 2 theta, cos 2 theta)`` without the angle: the same values as the angle's,
+    and derivatives that stay finite at theta = 0 (where the angle's ``asin`` has none)."""
+    from polarbssrdf.optics.mueller import (
+        stokes_basis_rotation_angle,
+        stokes_basis_rotation_sincos,
+    )
+
+    directions = random_unit_vectors(rng, 64)
+    forward = mi.Vector3f(*[mi.Float(directions[:, k]) for k in range(3)])
+    current = stokes_basis(forward)
+    # targets at random angles about forward, the first 8 equal to the current basis
+    angle = rng.uniform(-np.pi, np.pi, 64)
+    angle[:8] = 0.0
+    s, c = dr.sincos(mi.Float(angle))
+    target = c * current + s * dr.cross(forward, current)
+    reference = stokes_basis_rotation_angle(forward, current, target)
+    sin_2theta, cos_2theta = stokes_basis_rotation_sincos(forward, current, target)
+    np.testing.assert_allclose(np.array(sin_2theta), np.sin(2 * np.array(reference)), atol=2e-6)
+    np.testing.assert_allclose(np.array(cos_2theta), np.cos(2 * np.array(reference)), atol=2e-6)
+    # scaled basis vectors give the same rotation
+    scaled = stokes_basis_rotation_sincos(forward, 3.0 * current, 0.5 * target)
+    np.testing.assert_allclose(np.array(scaled[0]), np.array(sin_2theta), atol=2e-6)
+
+    dr.enable_grad(target)
+    old = dr.sincos(2.0 * stokes_basis_rotation_angle(forward, current, target))
+    dr.backward(old[0] + old[1])
+    assert not np.isfinite(np.array(dr.grad(target.x))[:8]).all()  # the defect being fixed
+    dr.clear_grad(target)
+    new = stokes_basis_rotation_sincos(forward, current, target)
+    dr.backward(new[0] + new[1])
+    assert np.isfinite(np.array(dr.grad(target.x))).all()
