@@ -4,22 +4,28 @@ The maps being optimized are full-texture Dr.Jit tensors owned by a
 ``drjit.opt.RMSProp`` optimizer with ``mask_updates=True``: a patch step
 gives gradients only to the patch's window, and texels elsewhere keep their
 values *and* their RMSProp state, as if the patch were optimized alone.
-The glossy albedos are optimized as lobe amplitudes at normal incidence:
-the gradient steps move ``q = rho F0(eta) / F0(eta_ref)`` (``F0`` the
-normal-incidence Fresnel reflectance, ``eta_ref`` the start value of
-``eta``), and ``rho = q F0(eta_ref) / F0(eta)`` enters the model. A glossy
-lobe's brightness is ``rho F(eta)``, so with ``rho`` itself as the variable
-``eta`` and ``rho`` share a long shallow valley along which a diagonal
-optimizer creeps: on a noise-free face the final ``eta`` moved by -0.016
-when only the start of ``rho_s`` changed (0.5 -> 0.8). In ``q`` the
-valley is along an axis, and the optimizer's per-parameter scaling handles it.
+With ``glossy_amplitudes`` the glossy albedos are optimized as lobe
+amplitudes at normal incidence: the gradient steps move ``q = rho F0(eta) /
+F0(eta_ref)`` (``F0`` the normal-incidence Fresnel reflectance, ``eta_ref``
+the start value of ``eta``), and ``rho = q F0(eta_ref) / F0(eta)`` enters
+the model. A glossy lobe's brightness is ``rho F(eta)``, so with ``rho``
+itself as the variable (the default) ``eta`` and ``rho`` share a long
+shallow valley along which a diagonal optimizer creeps: on a noise-free face
+the final ``eta`` moved by -0.016 when only the start of ``rho_s`` changed
+(0.5 -> 0.8). In ``q`` the valley is along an axis, but on a raw face the
+noise then reaches ``eta`` (bench/RESULTS.md), hence off by default.
 ``rho_sss`` per band is linear given the rest: before each gradient step it
 is solved per texel and band by least squares on ``L_sss``
-(:func:`solve_subsurface_albedo`), then held. Dr.Jit's reverse pass
-differentiates the data and temporal terms; the regularizers (eq. 33-35) bring
-their own exact gradients (:mod:`polarbssrdf.inverse.regularizers`), which
-are added to it (:func:`patch_gradients`). The global gradient norm is
-clipped, and every map is clamped to its bounds after the step.
+(:func:`solve_subsurface_albedo`), then held.
+
+Gradients (:func:`patch_gradients`): Dr.Jit's reverse pass differentiates
+the data terms down to per texel-view leaves (:func:`patch_leaves`), whose
+gradients each texel sums in a fixed order, so a step's gradient is the same
+on any number of threads; the regularizers (eq. 33-35,
+:mod:`polarbssrdf.inverse.regularizers`) and the dynamic stage's temporal
+terms bring their own exact gradients, which are added to it. The global
+gradient norm is clipped, and every map is clamped to its bounds after the
+step.
 
 Specular vs single scattering: both lobes are GGX lobes with the same
 Fresnel term and differ only in roughness, so along the few view angles of a
