@@ -107,6 +107,12 @@ def summary(name, evaluation):
         "rho_sss_rel": max(rho_sss) if rho_sss else None,
         "normal_deg": maps["normal"]["mean_deg"],
     }
+    # where the glossy peak was seen: alpha_s per class of the specular peak angle
+    row["alpha_s_by_peak_angle"] = {
+        f"{c['from_deg']:g}-{c['to_deg']:g} deg": {
+            "fraction": round(c["fraction"], 3), "mae": round(c["mae"], 4),
+            "constant_mae": round(c["constant_mae"], 4)}
+        for c in maps.get("by_specular_peak_angle", {}).get("alpha_s", [])}
     holdout = evaluation.get("holdout")
     if holdout:
         row["holdout_I_s_rel"] = holdout["mean"]["relative_rmse_I_s"]

@@ -255,9 +255,16 @@ def static_maps_section(data) -> str:
     parts.append(_image(map_comparison_png("confidence", maps["confidence"], None,
                                            np.asarray(data.atlas.valid, bool)),
                         "confidence map"))
+    note = ""
+    if "specular_peak_angle" in maps:
+        parts.append(_image(map_comparison_png("specular_peak_angle", maps["specular_peak_angle"],
+                                               None, mask, "deg"), "specular peak angle map"))
+        note = (" The specular peak angle is the angle between the normal and the closest half "
+                "vector of the texel's views: where it is large the glossy lobes were seen on "
+                "their tails only, and alpha_s and rho_s rest on the smoothness prior.")
     return ("<p>Texels with confidence 0 (too few views, or a fit far worse than the median) "
-            "and texels off the mesh are grey. Albedo errors are relative to the truth.</p>"
-            + "\n".join(parts))
+            "and texels off the mesh are grey. Albedo errors are relative to the truth."
+            + note + "</p>" + "\n".join(parts))
 
 
 def normals_section(data) -> str:

@@ -15,7 +15,11 @@ so) and every truth channel used is finite:
 * normals: mean and median angle (degrees) between the result's
   ``normal.x/y/z`` and the truth normals, :func:`normals_from_height` of the
   truth displacement on the atlas of the capture's base mesh; next to them
-  the same for the base mesh's own normals (``H = 0``).
+  the same for the base mesh's own normals (``H = 0``);
+* ``by_specular_peak_angle`` (results that have the ``specular_peak_angle``
+  channel): the MAE of ``alpha_s`` per class of that angle
+  (:func:`peak_angle_breakdown`), since the glossy lobes are measured only
+  where a view saw them near their peak.
 
 If the run held cameras out (``result.json`` ``settings.holdout``), their
 views are re-rendered with the recovered maps and compared with the capture
@@ -168,7 +172,44 @@ def evaluate_maps(maps, truth, atlas, band_names, units=None):
     scores["normal"] = {"mean_deg": float(np.mean(error)), "median_deg": float(np.median(error)),
                         "base_mesh_mean_deg": float(np.mean(base)),
                         "base_mesh_median_deg": float(np.median(base)), "unit": "degree"}
+    if "specular_peak_angle" in maps:
+        angle = np.asarray(maps["specular_peak_angle"], np.float64)[scored]
+        scores["by_specular_peak_angle"] = {
+            name: peak_angle_breakdown(maps[name][scored], truth[name][scored], angle)
+            for name in PEAK_SCORED_MAPS}
     return scores, scored
+
+
+PEAK_ANGLE_BINS_DEG = (0.0, 10.0, 20.0, 30.0, 90.0)
+"""Edges of the specular-peak-angle classes the glossy maps are also scored in."""
+
+PEAK_SCORED_MAPS = ("alpha_s",)
+"""Maps that the specular lobe's peak determines, scored per specular-peak-angle class."""
+
+
+def peak_angle_breakdown(estimate, truth, angle):
+    """The MAE of a glossy map per class of :data:`PEAK_ANGLE_BINS_DEG` of ``angle``.
+
+    A list of ``{"from_deg", "to_deg", "texels", "fraction", "mae",
+    "constant_mae"}``; the constant is the truth's mean over *all* the
+    samples, the same constant as the map's overall ``constant_mae``, so
+    the classes show where the map beats it. Empty classes are left out.
+    """
+    estimate = np.asarray(estimate, np.float64)
+    truth = np.asarray(truth, np.float64)
+    constant = truth.mean()
+    classes = []
+    edges = PEAK_ANGLE_BINS_DEG
+    for index, (low, high) in enumerate(zip(edges[:-1], edges[1:])):
+        last = index == len(edges) - 2
+        members = (angle >= low) & ((angle <= high) if last else (angle < high))
+        if not members.any():
+            continue
+        classes.append({"from_deg": low, "to_deg": high, "texels": int(members.sum()),
+                        "fraction": float(members.mean()),
+                        "mae": float(np.mean(np.abs(estimate[members] - truth[members]))),
+                        "constant_mae": float(np.mean(np.abs(truth[members] - constant)))})
+    return classes
 
 
 def biophysical_scores(maps, truth, valid):

@@ -17,7 +17,7 @@ rotation into the image's Stokes frame (x = image right, y = image up, as
 Mitsuba's ``stokes`` integrator writes it). The subsurface lobe is linear in
 ``rho_sss``, so it is returned per unit albedo and the per-band images are
 ``glossy + rho_sss[band] * subsurface``; this is what lets the stages solve
-for ``rho_sss`` in closed form (:mod:`polarbssrdf.inverse.albedo`).
+for ``rho_sss`` in closed form (:func:`polarbssrdf.inverse.optimize.solve_subsurface_albedo`).
 
 Local albedo: the subsurface lobe here is the supplement's local
 ``rho_bar_sss`` (sec. 5.1), the apparent albedo of the diffused light at the

@@ -10,7 +10,7 @@ import numpy as np
 from polarbssrdf.inverse.result import RESULT_UNITS
 
 MAP_RANGES = {"eta": (1.3, 1.6), "alpha_s": (0.1, 0.7), "alpha_ss": (0.7, 1.0),
-              "confidence": (0.0, 1.0)}
+              "confidence": (0.0, 1.0), "specular_peak_angle": (0.0, 90.0)}
 """Fixed colour ranges where the parameter has natural bounds; others use the 1st-99th percentile."""
 
 

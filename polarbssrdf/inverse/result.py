@@ -32,8 +32,9 @@ RESULT_SCHEMA = "polarbssrdf.result"
 RESULT_SCHEMA_VERSION = 1
 RESULT_FILE = "result.json"
 
-RESULT_UNITS = dict(DEFAULT_TRUTH_UNITS, normal="1", confidence="1")
-"""Units of result channels (the truth's, plus unit normals and the confidence in [0, 1])."""
+RESULT_UNITS = dict(DEFAULT_TRUTH_UNITS, normal="1", confidence="1", specular_peak_angle="deg")
+"""Units of result channels (the truth's, plus unit normals, the confidence in [0, 1] and the
+specular peak angle in degrees)."""
 
 
 def stage_map_path(stage, frame):

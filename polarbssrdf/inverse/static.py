@@ -21,6 +21,16 @@ below ``min_views`` and 0 where the fitted model leaves residuals far above
 the typical texel's (:func:`texel_confidence`); confidence-0 texels (and
 texels off the mesh) take the values of their confident neighbours
 (normalized Gaussian fill), never NaN.
+
+Specular peak angle (``specular_peak_angle``, degrees): between the fitted
+normal and the closest half vector among the texel's usable texel-views.
+With near-coaxial light a view samples a texel's glossy lobes near their
+peak only when it looks at the texel nearly head-on; where this angle is
+large the lobes were seen on their tails alone, so ``alpha_s`` and ``rho_s``
+rest on the tail's shape and on the smoothness prior (eq. 35), while ``eta``,
+``rho_sss`` and the normals are still measured. On a 12-view sphere the
+``alpha_s`` error is 0.003 where the angle is below 10 degrees and 0.029
+above 30 degrees (bench/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -183,28 +193,57 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
     return history, cache
 
 
-def texel_statistics(params, cache, patches, config):
-    """Per texel: usable texel-views and their mean chi-square of ``I_sss`` and ``I_s``.
+UNSEEN_PEAK_ANGLE_DEG = 90.0
+"""``specular_peak_angle`` of a texel without usable texel-views."""
 
-    Both (T, T) float64; the chi-square is per texel-view and band, NaN where unseen.
+
+@dataclasses.dataclass
+class TexelStatistics:
+    """Per texel (T, T) float64 summaries of the fitted texel-views.
+
+    Attributes
+    ----------
+    counts : array
+        Usable texel-views (view and light cosines above ``min_cosine``).
+    chi_square : array
+        Their mean chi-square of ``I_sss`` and ``I_s`` per texel-view and band (NaN where unseen).
+    specular_peak_angle : array
+        Degrees between the fitted normal and the closest half vector of the
+        usable texel-views (:data:`UNSEEN_PEAK_ANGLE_DEG` where unseen).
     """
-    from polarbssrdf.inverse.optimize import texel_view_terms
+
+    counts: np.ndarray
+    chi_square: np.ndarray
+    specular_peak_angle: np.ndarray
+
+
+def texel_statistics(params, cache, patches, config):
+    """:class:`TexelStatistics` of the current maps over every patch."""
+    from polarbssrdf.inverse.model import half_vector_cosine
+    from polarbssrdf.inverse.optimize import per_view_normals, texel_view_terms
 
     T = params.resolution
     counts = np.zeros(T * T, np.float64)
     chi_square = np.zeros(T * T, np.float64)
+    peak_cosine = np.full(T * T, -1.0, np.float64)
     for patch in patches:
         prepared = cache.get(patch)
         if len(prepared) == 0:
             continue
-        per_view, weight, _, _ = texel_view_terms(params, prepared, config, solve_albedo=False)
+        per_view, weight, _, leaves = texel_view_terms(params, prepared, config, solve_albedo=False)
         texel = prepared.window_index[prepared.texel_numpy]
-        np.add.at(counts, texel, np.array(weight))
+        usable = np.array(weight)
+        np.add.at(counts, texel, usable)
         residual = (np.array(per_view["sss"]) + np.array(per_view["s"])) / len(prepared.observed)
         np.add.at(chi_square, texel, residual)
+        normal = per_view_normals(leaves["dH_du"], leaves["dH_dv"], prepared)
+        cosine = np.array(half_vector_cosine(prepared.geometry, normal), np.float64)
+        np.maximum.at(peak_cosine, texel, np.where(usable > 0, cosine, -1.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.where(counts > 0, chi_square / counts, np.nan)
-    return counts.reshape(T, T), mean.reshape(T, T)
+    angle = np.where(counts > 0, np.degrees(np.arccos(np.clip(peak_cosine, -1.0, 1.0))),
+                     UNSEEN_PEAK_ANGLE_DEG)
+    return TexelStatistics(counts.reshape(T, T), mean.reshape(T, T), angle.reshape(T, T))
 
 
 def texel_confidence(counts, chi_square, valid, config):
@@ -231,8 +270,9 @@ def fill_from_confident(values, confident, sigma=2.0):
     return fill_from_neighbours(values, confident, sigma).astype(np.float32)
 
 
-def final_maps(params, atlas, confidence, band_names):
-    """The result channels: maps filled where confidence is 0, normals and confidence."""
+def final_maps(params, atlas, confidence, band_names, specular_peak_angle=None):
+    """The result channels: maps filled where confidence is 0, normals, confidence and
+    (when given) the specular peak angle."""
     from polarbssrdf.geometry.height import normals_from_height
 
     confident = (confidence > 0) & atlas.valid
@@ -246,6 +286,9 @@ def final_maps(params, atlas, confidence, band_names):
     for axis, component in zip("xyz", np.moveaxis(normal, -1, 0)):
         channels[f"normal.{axis}"] = component.astype(np.float32)
     channels["confidence"] = confidence.astype(np.float32)
+    if specular_peak_angle is not None:
+        channels["specular_peak_angle"] = np.where(atlas.valid, specular_peak_angle,
+                                                   UNSEEN_PEAK_ANGLE_DEG).astype(np.float32)
     return channels
 
 
@@ -263,9 +306,10 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
     history, cache = optimize_maps(store, atlas, config, params, checkpoint, progress, weights,
                                    description)
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
-    counts, chi_square = texel_statistics(params, cache, patches, config)
-    confidence = texel_confidence(counts, chi_square, atlas.valid, config)
-    return StageResult(final_maps(params, atlas, confidence, store.bands), history)
+    statistics = texel_statistics(params, cache, patches, config)
+    confidence = texel_confidence(statistics.counts, statistics.chi_square, atlas.valid, config)
+    return StageResult(final_maps(params, atlas, confidence, store.bands,
+                                  statistics.specular_peak_angle), history)
 
 
 def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=(),

@@ -124,6 +124,37 @@ def test_known_offset_and_unconfident_texels(capture_dir, truth_result_maps, tmp
     assert report["texels_confident"] == T * T // 2
 
 
+def test_alpha_s_is_also_scored_per_specular_peak_angle(capture_dir, capture, atlas,
+                                                       truth_result_maps, tmp_path):
+    """Known errors per class: 0.01 below 10 degrees, 0.03 from 30 degrees, none between."""
+    from polarbssrdf.inverse.evaluate import evaluate_result
+
+    maps = dict(truth_result_maps)
+    assert "by_specular_peak_angle" not in evaluate_result(
+        fake_result(tmp_path / "without", capture_dir, maps), capture_dir)["maps"]
+    rows = np.arange(T)[:, None] * np.ones((1, T))
+    angle = np.where(rows < 8, 5.0, np.where(rows < 16, 15.0, np.where(rows < 24, 25.0, 90.0)))
+    offset = np.where(angle < 10, 0.01, np.where(angle >= 30, -0.03, 0.0))
+    maps["alpha_s"] = (maps["alpha_s"] + offset).astype(np.float32)
+    maps["specular_peak_angle"] = angle.astype(np.float32)
+    report = evaluate_result(fake_result(tmp_path / "with", capture_dir, maps), capture_dir)
+    classes = report["maps"]["by_specular_peak_angle"]["alpha_s"]
+    assert [(c["from_deg"], c["to_deg"]) for c in classes] == [(0, 10), (10, 20), (20, 30),
+                                                               (30, 90)]
+    for entry, error in zip(classes, (0.01, 0.0, 0.0, 0.03)):
+        assert entry["mae"] == pytest.approx(error, abs=2e-6)
+    valid = np.asarray(atlas.valid, bool)
+    assert sum(c["texels"] for c in classes) == report["texels_scored"] == int(valid.sum())
+    assert sum(c["fraction"] for c in classes) == pytest.approx(1.0)
+    # one constant for every class: the truth's mean over all scored texels
+    truth = capture.truth_maps(0)["alpha_s"].astype(np.float64)
+    mean = truth[valid].mean()
+    members = valid & (angle >= 30)
+    assert classes[3]["constant_mae"] == pytest.approx(np.abs(truth[members] - mean).mean())
+    assert report["maps"]["alpha_s"]["mae"] == pytest.approx(
+        sum(c["mae"] * c["fraction"] for c in classes), abs=2e-6)
+
+
 def test_holdout_rerender_of_the_truth_and_of_darker_subsurface(capture_dir, truth_result_maps,
                                                                 tmp_path):
     """Local lobe vs the capture's texture-space diffusion: small for the truth, > 2x at 0.7."""

@@ -81,7 +81,7 @@ def expected_channels(capture_dir):
     bands = load_capture(capture_dir, check_images=False).manifest.band_names
     return {"eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement",
             *(f"rho_sss.{band}" for band in bands), "normal.x", "normal.y", "normal.z",
-            "confidence"}
+            "confidence", "specular_peak_angle"}
 
 
 # --------------------------------------------------------------------------- outputs
@@ -113,6 +113,8 @@ def test_maps_have_exactly_the_documented_channels_and_no_nan(run, capture_dir):
         assert np.all(np.isfinite(values)), name
     assert metadata["texel_views"] > 0
     assert 0 <= channels["confidence"].min() and channels["confidence"].max() <= 1
+    angle = channels["specular_peak_angle"]
+    assert 0 <= angle.min() and angle.max() <= 90
 
 
 def test_previews_decode_as_png(run):

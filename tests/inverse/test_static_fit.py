@@ -68,6 +68,42 @@ def test_noise_free_sphere_recovers_eta_albedo_and_normals(sphere_problem):
     assert result.history[-1]["total"] < 0.5 * result.history[0]["total"]
 
 
+def test_the_specular_peak_angle_is_the_closest_half_vector_of_the_usable_views(sphere_problem):
+    """The statistic against NumPy from the texel-views' directions and the truth's normals."""
+    from polarbssrdf.inverse.config import OPTIMIZED, static_config
+    from polarbssrdf.inverse.optimize import MapParameters
+    from polarbssrdf.inverse.patches import PatchCache, texture_patches
+    from polarbssrdf.inverse.static import UNSEEN_PEAK_ANGLE_DEG, final_maps, texel_statistics
+
+    atlas, store, truth, rho_sss = sphere_problem
+    config = static_config()
+    maps = {name: truth[name] for name in OPTIMIZED}
+    params = MapParameters(maps, rho_sss, config.learning_rates)
+    patches = texture_patches(T, config.patch_size, store.block_size)
+    angle = texel_statistics(params, PatchCache(store, atlas), patches,
+                             config).specular_peak_angle.ravel()
+    views = store.views_data
+    n = truth["normal"].reshape(-1, 3)[views.texel].astype(np.float64)
+    usable = ((np.sum(n * views.to_camera, -1) > config.min_cosine)
+              & (np.sum(n * views.to_light, -1) > config.min_cosine))
+    half = views.to_camera + views.to_light
+    half /= np.linalg.norm(half, axis=-1, keepdims=True)
+    best = np.full(T * T, -1.0)
+    np.maximum.at(best, views.texel[usable], np.sum(n * half, -1)[usable])
+    seen = best > -1.0
+    expected = np.degrees(np.arccos(np.clip(best, -1.0, 1.0)))
+    assert seen.sum() > 0.4 * atlas.valid.sum()
+    # float32 directions and normals: 0.05 degrees
+    np.testing.assert_allclose(angle[seen], expected[seen], atol=0.05)
+    assert np.all(angle[~seen] == UNSEEN_PEAK_ANGLE_DEG)
+    # a ring at 0 and +-25 degrees elevation: head-on somewhere, only tails near the poles
+    assert angle[seen].min() < 3.0 and angle[seen].max() > 40.0
+    channels = final_maps(params, atlas, np.ones((T, T)), BANDS, angle.reshape(T, T))
+    assert channels["specular_peak_angle"].dtype == np.float32
+    np.testing.assert_array_equal(channels["specular_peak_angle"][atlas.valid],
+                                  angle.reshape(T, T)[atlas.valid].astype(np.float32))
+
+
 def test_without_polarimetric_losses_eta_is_not_recovered(sphere_problem):
     """Ablation switch: without L_psi and L_phi only the Fresnel reflectance constrains eta."""
     from polarbssrdf.inverse.config import static_config
