@@ -3,7 +3,7 @@
 One frame of a synthetic face's subsurface albedo maps (synth's truth model:
 the darker Table 2 row ``forehead, IV`` with real spatial variation,
 ``biophysical_std`` C_m 0.012, beta_m 0.01, C_h_out 0.02, C_h_in 0.012), 6
-bands, fitted by :func:`polarbssrdf.inverse.biophysical.fit_biophysical` with
+bands, fitted by :func:`polarbssrdf.inverse.biophysical.fit.fit_biophysical` with
 the default :class:`BiophysicalConfig`, each case in its own child process so
 that its peak resident memory (``getrusage``) is its own:
 
@@ -39,7 +39,7 @@ def run_case(texture, noise):
 
     mi.set_variant("llvm_ad_mono_polarized")
     from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
-    from polarbssrdf.inverse.biophysical import BiophysicalConfig, fit_biophysical, start_maps
+    from polarbssrdf.inverse.biophysical.fit import BiophysicalConfig, fit_biophysical, start_maps
     from polarbssrdf.render.subsurface import subsurface_exit_fraction
     from polarbssrdf.skin.parameters import table2_ranges
     from polarbssrdf.spectral import default_bands

@@ -52,9 +52,9 @@ def main(argv=None):
         cli("reconstruct", capture, static, "--stages", "static", "--quiet", "--overwrite")
         print(f"static stage in {time.perf_counter() - start:.0f} s", flush=True)
 
-    from polarbssrdf.inverse.commands import select_variant
+    from polarbssrdf.variants import select_variant
     from polarbssrdf.inverse.config import static_config
-    from polarbssrdf.inverse.dynamic import run_dynamic_stage
+    from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage
     from polarbssrdf.inverse.frames import scheduling_overhead
     from polarbssrdf.io import load_capture
 

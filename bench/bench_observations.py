@@ -42,7 +42,7 @@ def build_once(capture: Path, texture: int, store: Path) -> None:
     import mitsuba as mi
 
     import polarbssrdf  # noqa: F401
-    from polarbssrdf.inverse.observations import build_observations
+    from polarbssrdf.inverse.observations.build import build_observations
 
     mi.set_variant("llvm_ad_mono_polarized")
     baseline_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -122,7 +122,7 @@ def child_observe(job: dict) -> dict:
     import mitsuba as mi
 
     import polarbssrdf  # noqa: F401
-    from polarbssrdf.inverse.observations import build_observations
+    from polarbssrdf.inverse.observations.build import build_observations
 
     mi.set_variant(VARIANT)
     before = _peak_rss_mb()
@@ -140,11 +140,11 @@ def child_optimize(job: dict) -> dict:
     import mitsuba as mi
 
     import polarbssrdf  # noqa: F401
-    import polarbssrdf.inverse.static as static
+    import polarbssrdf.inverse.polarimetric.static as static
     from polarbssrdf.geometry import texel_atlas, to_mitsuba
     from polarbssrdf.inverse.config import static_config
-    from polarbssrdf.inverse.observation_store import ObservationStore
-    from polarbssrdf.inverse.patches import patch_order, texture_patches
+    from polarbssrdf.inverse.observations.store import ObservationStore
+    from polarbssrdf.inverse.polarimetric.patches import patch_order, texture_patches
     from polarbssrdf.io import load_capture
 
     mi.set_variant(VARIANT)

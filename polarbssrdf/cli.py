@@ -2,7 +2,8 @@
 
 Each command lives in the module of its stage and adds itself through a
 ``register(subparsers)`` function, so this file only lists them. :func:`main`
-turns the errors a user can fix, and Ctrl-C, into one line on stderr.
+turns the errors a user can fix (:func:`polarbssrdf.errors.run_command`), and
+Ctrl-C, into one line on stderr.
 """
 
 from __future__ import annotations
@@ -12,8 +13,7 @@ import importlib
 import sys
 
 import polarbssrdf
-from polarbssrdf.errors import (CommandError, is_interrupted_plugin, is_plugin_error,
-                                plugin_error_message)
+from polarbssrdf.errors import EXIT_INTERRUPTED, caused_by_interrupt, run_command
 
 COMMAND_MODULES = (
     "polarbssrdf.render.commands",
@@ -21,13 +21,9 @@ COMMAND_MODULES = (
     "polarbssrdf.synth.commands",
     "polarbssrdf.calibration.commands",
     "polarbssrdf.inverse.commands",
-    "polarbssrdf.report",
+    "polarbssrdf.report.commands",
     "polarbssrdf.demo",
 )
-
-EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
-"""Exit status after Ctrl-C: 128 + SIGINT, as shells report it."""
 
 
 def version_text() -> str:
@@ -72,48 +68,6 @@ def interrupted_message(args) -> str:
     if hasattr(args, "resume"):
         message += "; rerun with --resume to continue"
     return message
-
-
-def caused_by_interrupt(error: BaseException) -> bool:
-    """Whether ``error`` is Ctrl-C, or an error raised because of it.
-
-    Ctrl-C inside a C++ extension can surface as another exception whose cause
-    is the ``KeyboardInterrupt``: e.g. during :func:`mitsuba.set_variant`,
-    which imports modules, Python reports ``SystemError: <built-in function
-    __import__> returned a result with an exception set``; inside a Python
-    plugin's constructor Mitsuba reports it as a plugin error whose traceback
-    ends in ``KeyboardInterrupt`` (:func:`polarbssrdf.errors.is_interrupted_plugin`).
-    """
-    seen = set()
-    while error is not None and id(error) not in seen:
-        if isinstance(error, KeyboardInterrupt) or is_interrupted_plugin(error):
-            return True
-        seen.add(id(error))
-        error = error.__cause__ or error.__context__
-    return False
-
-
-USER_ERRORS = (CommandError, FileNotFoundError, FileExistsError, ValueError)
-"""Exceptions whose message is for the user: printed on one line, exit status 2."""
-
-
-def run_command(args) -> int:
-    """Run the parsed command; errors a user can fix become one line on stderr and status 2."""
-    try:
-        return int(args.run(args) or 0)
-    except Exception as error:
-        if caused_by_interrupt(error):  # e.g. a CommandError wrapping a failed import
-            raise
-        if isinstance(error, USER_ERRORS):
-            message = str(error)
-        elif is_plugin_error(error):
-            # A Python plugin rejected its parameters while Mitsuba built a scene: the
-            # plugin's message is for the user, the traceback Mitsuba embeds is not.
-            message = plugin_error_message(error)
-        else:
-            raise
-        print(f"polarbssrdf {args.command}: error: {message}", file=sys.stderr)
-        return EXIT_USER_ERROR
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,7 +1,7 @@
 """``polarbssrdf demo OUTDIR``: the whole acquisition on a synthetic face, end to end.
 
-The demo runs the commands a user would run, in this process and with the
-same argument parser, and prints each one so it can be repeated by hand:
+The demo runs what a user would run, in this process, and prints each step as
+the command that repeats it by hand:
 
 1. ``polarbssrdf synth OUTDIR/capture``: a face seen by ``views`` cameras
    through the polarization sensor (raw 12-bit mosaics with sensor noise,
@@ -10,8 +10,9 @@ same argument parser, and prints each one so it can be repeated by hand:
    values (:data:`TRUTH_SETTINGS`);
 2. ``polarbssrdf reconstruct OUTDIR/capture OUTDIR/result --holdout CAM``:
    the static, dynamic and biophysical stages, one camera held out;
+   (:func:`polarbssrdf.inverse.pipeline.reconstruct`);
 3. the evaluation of every stage and frame against the truth
-   (:func:`polarbssrdf.inverse.evaluate.evaluate_stages`), written to
+   (:func:`polarbssrdf.inverse.evaluation.scores.evaluate_stages`), written to
    ``OUTDIR/metrics.json`` with the wall time of every step;
 4. ``polarbssrdf report OUTDIR``: ``OUTDIR/report.html`` (:mod:`polarbssrdf.report`).
 
@@ -22,6 +23,7 @@ other settings is refused with the differences named.
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 import sys
@@ -29,7 +31,12 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from polarbssrdf.errors import CommandError
+from polarbssrdf.errors import EXIT_USER_ERROR, USER_ERRORS, CommandError, run_command
+from polarbssrdf.inverse.commands import integer_at_least
+from polarbssrdf.inverse.results.directory import TIMINGS_FILE
+from polarbssrdf.io.atomic import atomic_write_text
+from polarbssrdf.report import commands as report_commands
+from polarbssrdf.synth import commands as synth_commands
 
 DEMO_FILE = "demo.json"
 DEMO_SCHEMA = "polarbssrdf.demo"
@@ -127,8 +134,6 @@ def reconstruct_arguments(settings, capture_dir, result_dir, resume, workers=Non
 def prepare_demo_directory(outdir: Path, settings: DemoSettings, *, resume=False,
                            overwrite=False) -> None:
     """Create ``outdir`` or check it for ``resume``/``overwrite``; write ``demo.json``."""
-    from polarbssrdf.io.atomic import atomic_write_text
-
     record = outdir / DEMO_FILE
     if outdir.exists() and not outdir.is_dir():
         raise CommandError(f"'{outdir}' exists and is not a directory")
@@ -167,14 +172,41 @@ def prepare_demo_directory(outdir: Path, settings: DemoSettings, *, resume=False
                       overwrite=True)
 
 
-def _run_step(arguments, say) -> None:
-    from polarbssrdf.cli import build_parser, run_command
-
+def _run_step(command_module, arguments, say) -> None:
+    """Run ``polarbssrdf ARGUMENTS`` through its command module's own parser and handler."""
     say("$ polarbssrdf " + " ".join(arguments))
-    status = run_command(build_parser().parse_args(arguments))
+    parser = argparse.ArgumentParser(prog="polarbssrdf")
+    command_module.register(parser.add_subparsers(dest="command", required=True))
+    status = run_command(parser.parse_args(arguments))
     if status:
         raise CommandError(f"'polarbssrdf {arguments[0]}' failed (status {status}; its message "
                            "is above); fix it and rerun the demo with --resume")
+
+
+def _reconstruct_step(settings, capture_dir, result_dir, resume, workers, scheduler, quiet,
+                      say) -> None:
+    """``polarbssrdf reconstruct`` of the demo, through the Python API."""
+    # deferred: the pipeline imports every stage, and the command line imports this module
+    # for its parser at start-up
+    from polarbssrdf.inverse.pipeline import reconstruct
+
+    say("$ polarbssrdf " + " ".join(reconstruct_arguments(settings, capture_dir, result_dir,
+                                                          resume, workers, scheduler)
+                                    + (["--quiet"] if quiet else [])))
+    try:
+        result = reconstruct(capture_dir, result_dir, holdout=[settings.holdout],
+                             iterations=settings.iterations, workers=workers,
+                             scheduler=scheduler, resume=resume, progress=not quiet)
+    except USER_ERRORS as error:
+        print(f"polarbssrdf reconstruct: error: {error}", file=sys.stderr)
+        raise CommandError(f"'polarbssrdf reconstruct' failed (status {EXIT_USER_ERROR}; its "
+                           "message is above); fix it and rerun the demo with --resume") from None
+    print(result.summary())
+    if result.failed:
+        for frame, reason in sorted(result.failed.items()):
+            print(f"polarbssrdf reconstruct: frame {frame} failed: {reason}", file=sys.stderr)
+        raise CommandError(f"'polarbssrdf reconstruct' failed ({len(result.failed)} frame(s); "
+                           "their messages are above); fix it and rerun the demo with --resume")
 
 
 def headline_figures(evaluation) -> dict:
@@ -208,9 +240,8 @@ def headline_figures(evaluation) -> dict:
 def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, workers=None,
              scheduler=None, quiet=False) -> dict:
     """Run the demo into ``outdir``; returns the contents of ``OUTDIR/metrics.json``."""
-    from polarbssrdf.inverse.commands import TIMINGS_FILE
-    from polarbssrdf.inverse.evaluate import evaluate_stages
-    from polarbssrdf.io.atomic import atomic_write_text
+    # deferred, like the pipeline (see _reconstruct_step)
+    from polarbssrdf.inverse.evaluation.scores import evaluate_stages
 
     outdir = Path(outdir)
 
@@ -229,14 +260,15 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
         f"{settings.frames} frames")
     started = time.perf_counter()
     synth_resume = resume and capture_dir.is_dir() and any(capture_dir.iterdir())
-    _run_step(synth_arguments(settings, capture_dir, params, synth_resume) + quiet_flag, say)
+    _run_step(synth_commands, synth_arguments(settings, capture_dir, params, synth_resume)
+              + quiet_flag, say)
     seconds["synth"] = time.perf_counter() - started
 
     say("polarbssrdf demo: [2/4] reconstruct: static, dynamic and biophysical stages")
     started = time.perf_counter()
     result_resume = resume and result_dir.is_dir() and any(result_dir.iterdir())
-    _run_step(reconstruct_arguments(settings, capture_dir, result_dir, result_resume, workers,
-                                    scheduler) + quiet_flag, say)
+    _reconstruct_step(settings, capture_dir, result_dir, result_resume, workers, scheduler,
+                      quiet, say)
     seconds["reconstruct"] = time.perf_counter() - started
     try:
         stage_seconds = json.loads((result_dir / TIMINGS_FILE).read_text())
@@ -261,7 +293,7 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
     say("polarbssrdf demo: [4/4] the report")
     started = time.perf_counter()
     # the report command reads the demo directory: its result/ and the evaluation above
-    _run_step(["report", str(outdir)] + quiet_flag, say)
+    _run_step(report_commands, ["report", str(outdir)] + quiet_flag, say)
     seconds["report"] = time.perf_counter() - started
     metrics["seconds"]["report"] = round(seconds["report"], 2)
     atomic_write_text(outdir / "metrics.json", json.dumps(metrics, indent=1) + "\n",
@@ -273,8 +305,6 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
 # --------------------------------------------------------------------------- command
 def register(subparsers) -> None:
     """Add ``demo`` to the ``polarbssrdf`` argument parser."""
-    from polarbssrdf.inverse.commands import _integer_at_least
-
     defaults = DemoSettings()
     parser = subparsers.add_parser(
         "demo", help="synthesize a face capture, reconstruct it, evaluate it, write a report",
@@ -287,23 +317,23 @@ def register(subparsers) -> None:
     parser.add_argument("outdir", type=Path, metavar="OUTDIR",
                         help="demo directory: new or empty, or an earlier demo with --resume "
                              "or --overwrite")
-    parser.add_argument("--views", type=_integer_at_least(3), default=defaults.views,
+    parser.add_argument("--views", type=integer_at_least(3), default=defaults.views,
                         help="cameras; the middle one is held out (default: %(default)s)")
-    parser.add_argument("--frames", type=_integer_at_least(2), default=defaults.frames,
+    parser.add_argument("--frames", type=integer_at_least(2), default=defaults.frames,
                         help="frames, the first one static (default: %(default)s)")
-    parser.add_argument("--texture", type=_integer_at_least(16), default=defaults.texture,
+    parser.add_argument("--texture", type=integer_at_least(16), default=defaults.texture,
                         metavar="T", help="map size T x T, texels (default: %(default)s)")
-    parser.add_argument("--resolution", type=_integer_at_least(32),
+    parser.add_argument("--resolution", type=integer_at_least(32),
                         default=defaults.resolution, help="image size, px (default: "
                                                           "%(default)s)")
-    parser.add_argument("--spp", type=_integer_at_least(1), default=defaults.spp,
+    parser.add_argument("--spp", type=integer_at_least(1), default=defaults.spp,
                         help="samples per pixel of the synthetic images (default: %(default)s)")
-    parser.add_argument("--iterations", type=_integer_at_least(1), default=None, metavar="N",
+    parser.add_argument("--iterations", type=integer_at_least(1), default=None, metavar="N",
                         help="epochs of the static stage and of each dynamic frame (default: "
                              "150 and 30)")
     parser.add_argument("--analyser", action="store_true",
                         help="noise-free analyser images instead of raw sensor mosaics")
-    parser.add_argument("--seed", type=_integer_at_least(0), default=defaults.seed,
+    parser.add_argument("--seed", type=integer_at_least(0), default=defaults.seed,
                         help="seed of the truth, render and noise (default: %(default)s)")
     existing = parser.add_mutually_exclusive_group()
     existing.add_argument("--resume", action="store_true",
@@ -311,7 +341,7 @@ def register(subparsers) -> None:
     existing.add_argument("--overwrite", action="store_true",
                           help="start over in OUTDIR (removes only what the demo wrote)")
     cluster = parser.add_mutually_exclusive_group()
-    cluster.add_argument("--workers", type=_integer_at_least(1), default=None, metavar="N",
+    cluster.add_argument("--workers", type=integer_at_least(1), default=None, metavar="N",
                          help="run the per-frame fits on a local Dask cluster of N processes")
     cluster.add_argument("--scheduler", default=None, metavar="ADDRESS",
                          help="run the per-frame fits on an existing Dask cluster")

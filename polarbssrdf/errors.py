@@ -1,10 +1,13 @@
-"""Exceptions shared across the package, and the user-facing text of Mitsuba's errors."""
+"""Exceptions shared across the package, the user-facing text of Mitsuba's errors, and how a
+command turns the errors a user can fix into one line (:func:`run_command`)."""
 
 from __future__ import annotations
 
 import re
+import sys
 
-__all__ = ["CommandError", "is_plugin_error", "plugin_error_message"]
+__all__ = ["CommandError", "EXIT_INTERRUPTED", "EXIT_USER_ERROR", "USER_ERRORS",
+           "caused_by_interrupt", "is_plugin_error", "plugin_error_message", "run_command"]
 
 _TRACEBACK_HEADER = "Traceback (most recent call last):"
 
@@ -13,6 +16,11 @@ _SOURCE_TAG = re.compile(r"\[[\w.]+:\d+\]\s*")
 
 _PLAIN_EXCEPTION_TYPES = ("ValueError",)
 """Exception types whose name adds nothing: plugins raise them for invalid parameters."""
+
+
+EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+"""Exit status after Ctrl-C: 128 + SIGINT, as shells report it."""
 
 
 class CommandError(RuntimeError):
@@ -82,3 +90,45 @@ def plugin_error_message(error: BaseException) -> str:
     # With nested plugins the context may itself hold an earlier traceback's header.
     context = _SOURCE_TAG.sub("", context.split(_TRACEBACK_HEADER)[0]).strip().rstrip(":")
     return f"{context}: {message}" if context else message
+
+
+def caused_by_interrupt(error: BaseException) -> bool:
+    """Whether ``error`` is Ctrl-C, or an error raised because of it.
+
+    Ctrl-C inside a C++ extension can surface as another exception whose cause
+    is the ``KeyboardInterrupt``: e.g. during :func:`mitsuba.set_variant`,
+    which imports modules, Python reports ``SystemError: <built-in function
+    __import__> returned a result with an exception set``; inside a Python
+    plugin's constructor Mitsuba reports it as a plugin error whose traceback
+    ends in ``KeyboardInterrupt`` (:func:`polarbssrdf.errors.is_interrupted_plugin`).
+    """
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt) or is_interrupted_plugin(error):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
+
+
+USER_ERRORS = (CommandError, FileNotFoundError, FileExistsError, ValueError)
+"""Exceptions whose message is for the user: printed on one line, exit status 2."""
+
+
+def run_command(args) -> int:
+    """Run the parsed command; errors a user can fix become one line on stderr and status 2."""
+    try:
+        return int(args.run(args) or 0)
+    except Exception as error:
+        if caused_by_interrupt(error):  # e.g. a CommandError wrapping a failed import
+            raise
+        if isinstance(error, USER_ERRORS):
+            message = str(error)
+        elif is_plugin_error(error):
+            # A Python plugin rejected its parameters while Mitsuba built a scene: the
+            # plugin's message is for the user, the traceback Mitsuba embeds is not.
+            message = plugin_error_message(error)
+        else:
+            raise
+        print(f"polarbssrdf {args.command}: error: {message}", file=sys.stderr)
+        return EXIT_USER_ERROR

@@ -53,7 +53,7 @@ class InMemoryStore:
         T = self.texture_size
         r, c = np.divmod(self.views_data.texel, T)
         keep = (r >= row0) & (r < row0 + rows) & (c >= col0) & (c < col0 + cols)
-        from polarbssrdf.inverse.observation_store import FIELDS, TexelViews
+        from polarbssrdf.inverse.observations.store import FIELDS, TexelViews
 
         return TexelViews(**{name: getattr(self.views_data, name)[keep] for name in FIELDS})
 
@@ -71,7 +71,7 @@ def sphere_views(atlas, truth, rho_sss, n_cameras=12, intensity=4e4, min_cosine=
     """
     import mitsuba as mi
 
-    from polarbssrdf.inverse.model import ViewGeometry, predict_stokes
+    from polarbssrdf.inverse.polarimetric.model import ViewGeometry, predict_stokes
 
     T = atlas.resolution
     valid = np.flatnonzero(atlas.valid.ravel())

@@ -124,8 +124,8 @@ def test_demo_refuses_a_foreign_directory_and_other_settings(demo_dir, tmp_path,
 
 
 def test_report_without_truth_shows_maps_losses_and_residuals(demo_dir, tmp_path):
-    from polarbssrdf.inverse.commands import select_variant
-    from polarbssrdf.report import write_report
+    from polarbssrdf.variants import select_variant
+    from polarbssrdf.report.page import write_report
 
     capture = tmp_path / "real"
     shutil.copytree(demo_dir / "capture", capture, ignore=shutil.ignore_patterns("truth"))

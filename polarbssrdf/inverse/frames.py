@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import uuid
 
+from tqdm import tqdm
+
 
 def _reason(error):
     return f"{type(error).__name__}: {error}"
@@ -26,7 +28,6 @@ def _reason(error):
 def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progress=True,
                description="frames"):
     """``(records, failures)`` of ``task`` over ``frames`` (see the module docstring)."""
-    from tqdm import tqdm
 
     frames = list(frames)
     records, failures = {}, {}
@@ -39,6 +40,7 @@ def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progres
                     failures[frame] = _reason(error)
                 bar.update()
             return records, failures
+        # Dask (0.5 s to import) only when frames go to a cluster
         from dask.distributed import Client, LocalCluster, as_completed
 
         cluster = None

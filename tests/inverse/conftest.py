@@ -49,7 +49,7 @@ def sphere_capture(sphere_capture_dir):
 @pytest.fixture(scope="session")
 def sphere_store(sphere_capture, tmp_path_factory):
     """Observations of the analyser capture: T = 32 in 8 x 8 blocks (16 blocks)."""
-    from polarbssrdf.inverse.observations import build_observations
+    from polarbssrdf.inverse.observations.build import build_observations
 
     mi.set_variant("llvm_ad_mono_polarized")
     path = tmp_path_factory.mktemp("sphere_store") / "observations.zarr"

@@ -17,7 +17,8 @@ import pytest
 
 import mitsuba as mi
 
-from polarbssrdf.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, main
+from polarbssrdf.cli import main
+from polarbssrdf.errors import EXIT_INTERRUPTED, EXIT_USER_ERROR
 
 T = 32
 SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=4)
@@ -181,10 +182,10 @@ def test_resume_with_other_settings_names_them(run, capture_dir, config_file):
 def test_interrupted_run_resumes_to_the_same_maps(run, capture_dir, config_file, tmp_path,
                                                   monkeypatch):
     """Ctrl-C after epoch 1 exits 130; --resume ends like an uninterrupted run."""
-    from polarbssrdf.inverse import static
+    from polarbssrdf.inverse.polarimetric import fit
     from polarbssrdf.io.exr import read_exr
 
-    original = static.save_checkpoint
+    original = fit.save_checkpoint
 
     def interrupt_after_first_epoch(path, params, epoch, history, *args):
         original(path, params, epoch, history, *args)
@@ -193,11 +194,11 @@ def test_interrupted_run_resumes_to_the_same_maps(run, capture_dir, config_file,
 
     outdir = tmp_path / "out"
     args = reconstruct_args(capture_dir, outdir, config_file, "--holdout", "cam03")
-    monkeypatch.setattr(static, "save_checkpoint", interrupt_after_first_epoch)
+    monkeypatch.setattr(fit, "save_checkpoint", interrupt_after_first_epoch)
     status, _, stderr = run_cli(*args)
     assert status == EXIT_INTERRUPTED and "--resume" in stderr
     assert not (outdir / "static" / "maps_f0000.exr").exists()
-    monkeypatch.setattr(static, "save_checkpoint", original)
+    monkeypatch.setattr(fit, "save_checkpoint", original)
 
     status, _, stderr = run_cli(*args, "--resume")
     assert status == 0, stderr

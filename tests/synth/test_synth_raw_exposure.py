@@ -52,7 +52,7 @@ def test_every_raw_record_carries_its_cameras_fixed_exposure(captures):
 
 def test_calibrated_raw_reproduces_the_analyser_radiance(captures):
     """Mosaic level (noise only) and after demosaicking (plus interpolation), no fitted scale."""
-    from polarbssrdf.inverse.observations import analyser_images
+    from polarbssrdf.inverse.observations.build import analyser_images
 
     analyser, raw = captures
     bands = analyser.manifest.band_names

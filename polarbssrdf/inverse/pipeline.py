@@ -1,0 +1,375 @@
+"""The acquisition as one call: a capture in, a result directory out (what ``reconstruct`` runs).
+
+:func:`reconstruct` checks its inputs before any work, prepares (or resumes)
+the result directory, and runs the stages in their order, each reading the
+previous one's maps from disk:
+
+    capture -> observations -> static (sec. 5.1) -> dynamic (sec. 5.2, per frame)
+            -> biophysical (sec. 5.3, per frame) -> the result directory
+
+It records each stage's wall time in ``OUTDIR/timings.json`` and returns a
+:class:`Reconstruction`, which reads the maps back as NumPy arrays.
+:func:`evaluate` scores a result against a synthetic capture's truth and
+re-renders its held-out cameras (what ``evaluate`` prints). The ``reconstruct``
+and ``evaluate`` commands (:mod:`polarbssrdf.inverse.commands`) and ``demo``
+call these functions; a Python script can do the same::
+
+    from polarbssrdf.inverse import evaluate, reconstruct
+
+    result = reconstruct("capture", "result", stages=("static",), config={"iterations": 20},
+                         holdout=("cam03",))
+    eta = result.maps("static", 0)["eta"]          # (T, T) float32
+    scores = evaluate("result")                     # the JSON ``evaluate`` prints, as a dict
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import mitsuba as mi
+
+from polarbssrdf.errors import CommandError
+from polarbssrdf.inverse.biophysical.stage import run_bio_stage
+from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
+from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
+from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
+from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage
+from polarbssrdf.inverse.polarimetric.static import run_static_stage
+from polarbssrdf.inverse.results.directory import (
+    RESULT_FILE,
+    STAGES,
+    ResultDirectory,
+    continue_result_directory,
+    prepare_result_directory,
+    read_result,
+    record_stage_seconds,
+)
+from polarbssrdf.io import load_capture
+from polarbssrdf.io.capture import json_differences
+from polarbssrdf.io.exr import read_exr
+from polarbssrdf.variants import (
+    DEFAULT_VARIANT,
+    check_variant,
+    jit_mono_polarized_variants,
+    select_variant,
+)
+
+STAGE_TITLES = {
+    "static": "polarimetric inverse rendering of the static frame (eq. 26-35)",
+    "dynamic": "every other frame, from the static maps (eq. 36-39)",
+    "bio": "melanin and hemoglobin per frame (eq. 40-47)",
+}
+"""What each stage does, for its header line on the progress display."""
+
+
+class Reconstruction(ResultDirectory):
+    """What :func:`reconstruct` returns: the result directory, and what this run did.
+
+    Besides :class:`~polarbssrdf.inverse.results.directory.ResultDirectory`'s
+    readers (``.maps(stage, frame)``, ``.metrics``, ``.timings``), it has
+    ``capture`` (the capture directory), ``texture`` (T), ``frame`` (the static
+    frame), ``holdout``, ``seconds`` (wall time of the call), ``stage_lines``
+    (one line per stage that ran, as ``reconstruct`` prints them) and ``failed``
+    (``{frame: reason}`` of frames that did not finish; the others are written).
+    """
+
+    def __init__(self, outdir, *, capture, texture, frame, holdout, seconds, stage_lines,
+                 failed):
+        super().__init__(outdir)
+        self.capture, self.texture, self.frame = capture, texture, frame
+        self.holdout, self.seconds = list(holdout), seconds
+        self.stage_lines, self.failed = list(stage_lines), dict(failed)
+
+    def summary(self) -> str:
+        """The lines ``reconstruct`` prints when it finishes."""
+        held = f"; held out {', '.join(self.holdout)}" if self.holdout else ""
+        lines = [f"polarbssrdf reconstruct: {self.capture} -> {self.path} ({self.texture} x "
+                 f"{self.texture} texels, frame {self.frame}{held}) in {self.seconds:.1f} s"]
+        lines += self.stage_lines
+        lines.append(f"  result.json, metrics.json and previews in {self.path}; score it with "
+                     f"'polarbssrdf evaluate {self.path}'")
+        return "\n".join(lines)
+
+
+def stage_list(stages) -> list[str]:
+    """``stages`` (names, any order, duplicates allowed) in run order; unknown names are a
+    :class:`CommandError` that lists the known ones."""
+    names = list(dict.fromkeys(stages))
+    if not names:
+        raise CommandError(f"--stages is empty; known stages: {', '.join(STAGES)}")
+    unknown = [name for name in names if name not in STAGES]
+    if unknown:
+        raise CommandError(f"unknown stage{'s' if len(unknown) > 1 else ''} "
+                           f"{', '.join(repr(n) for n in unknown)} in --stages; known stages: "
+                           f"{', '.join(STAGES)}")
+    return [stage for stage in STAGES if stage in names]
+
+
+def load_input_capture(path: Path, frame: int | None = None):
+    """The capture of ``CAPTURE`` (manifests only), with a one-line error for each problem.
+
+    With ``frame``, only that frame's image files must exist: the dynamic stage
+    checks every other frame when it starts it, so a missing image fails only its frame.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"capture directory '{path}' does not exist")
+    if not path.is_dir():
+        raise CommandError(f"capture '{path}' is not a directory")
+    capture = load_capture(path, check_images=False, frames=None if frame is None else [frame])
+    if capture.manifest.mesh is None:
+        raise CommandError(f"capture '{path}' has no mesh: the stages work in the texture space "
+                           "of the object's mesh (with UVs); add one to capture.json ('mesh')")
+    return capture
+
+
+def check_frame_and_holdout(capture, frame: int, holdout: list[str]) -> None:
+    """The frame exists, has polarization images, and ``holdout`` names cameras that have them."""
+    manifest = capture.manifest
+    indices = [f.index for f in manifest.frames]
+    if frame not in indices:
+        raise CommandError(f"capture '{capture.directory}' has no frame {frame} (frames: "
+                           f"{', '.join(map(str, indices))})")
+    cameras = [camera.name for camera in manifest.cameras]
+    unknown = [name for name in holdout if name not in cameras]
+    if unknown:
+        raise CommandError(f"--holdout names unknown camera{'s' if len(unknown) > 1 else ''} "
+                           f"{', '.join(unknown)}; the capture's cameras are: "
+                           f"{', '.join(cameras)}")
+    polarized = [r for r in manifest.frame(frame).images if r.kind in ("analyser", "raw")]
+    if not polarized:
+        kinds = sorted({r.kind for r in manifest.frame(frame).images}) or ["none"]
+        raise CommandError(f"frame {frame} of capture '{capture.directory}' has no polarization "
+                           f"images (analyser or raw; it has: {', '.join(kinds)}): nothing to "
+                           "fit")
+    seen = {r.camera for r in polarized}
+    without = [name for name in holdout if name not in seen]
+    if without:
+        raise CommandError(f"--holdout camera{'s' if len(without) > 1 else ''} "
+                           f"{', '.join(without)} took no polarization image in frame {frame}: "
+                           "nothing to validate against")
+    if seen <= set(holdout):
+        raise CommandError(f"--holdout leaves out every camera of frame {frame} "
+                           f"({', '.join(sorted(seen))}): nothing left to fit")
+
+
+def run_settings(stages, config, holdout, frame) -> dict:
+    """What defines a run besides the capture and texture size (``result.json`` settings)."""
+    return {"stages": list(stages), "frame": int(frame), "holdout": sorted(holdout),
+            "config": config.to_json()}
+
+
+def _short(value, limit=60) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def resume_differences(outdir: Path, capture_dir: Path, texture: int, settings: dict) -> list:
+    """Settings of the run in ``outdir`` that differ from this one, as readable strings.
+
+    Nested settings (the config) are compared key by key, so the message names
+    e.g. ``config.iterations`` rather than the whole config.
+    """
+    if not (outdir / RESULT_FILE).is_file():
+        return []
+    manifest = read_result(outdir)
+    differences = []
+    if Path(manifest.capture) != capture_dir.resolve():
+        differences.append(f"capture: {manifest.capture} (first run) vs {capture_dir.resolve()} "
+                           "(now)")
+    if manifest.texture_size != texture:
+        differences.append(f"--texture: {manifest.texture_size} (first run) vs {texture} (now)")
+    names = {"stages": "--stages", "frame": "--frame", "holdout": "--holdout"}
+    old = json.loads(json.dumps(manifest.settings))
+    new = json.loads(json.dumps(settings))
+    pairs = []
+    for key in list(old) + [k for k in new if k not in old]:
+        before, after = old.get(key, "<absent>"), new.get(key, "<absent>")
+        if isinstance(before, dict) and isinstance(after, dict):
+            pairs += json_differences(before, after, key)  # config: key by key
+        elif before != after:
+            pairs.append((key, before, after))  # lists (holdout, stages) whole
+    for path, before, after in pairs:
+        name = names.get(path, path)
+        if path == "config.iterations":
+            name = "config.iterations (--iterations)"
+        differences.append(f"{name}: {_short(before)} (first run) vs {_short(after)} (now)")
+    return differences
+
+
+def _texel_views(path: Path) -> int | None:
+    try:
+        _, metadata = read_exr(path)
+    except (OSError, ValueError):
+        return None
+    value = (metadata or {}).get("texel_views")
+    return int(value) if isinstance(value, (int, float)) else None
+
+
+def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, texture=None,
+                frame=0, iterations=None, workers=None, scheduler=None, resume=False,
+                overwrite=False, progress=True, variant=DEFAULT_VARIANT) -> Reconstruction:
+    """Run the acquisition stages on ``capture`` into the result directory ``outdir``.
+
+    Parameters
+    ----------
+    capture : path
+        Capture directory (``capture.json``, images, mesh; docs/capture_format.md).
+        Never written to.
+    outdir : path
+        Result directory: new or empty; an earlier run with ``resume`` (continue it,
+        same settings) or ``overwrite`` (start over). Stages without ``"static"``
+        add to an earlier run of the same capture and texture size.
+    stages : sequence of str
+        Any of ``"static"``, ``"dynamic"``, ``"bio"``; run in that order.
+    config : None, StaticConfig, dict or path
+        The run's settings (docs/reconstruct.md); None: the paper's.
+    holdout : sequence of str
+        Cameras left out of the fit, for held-out re-renders (:func:`evaluate`).
+    texture : int, optional
+        Maps are T x T texels; default the capture's truth size, else
+        :data:`DEFAULT_TEXTURE`.
+    frame : int
+        The capture frame the static stage fits; the dynamic stage fits the others.
+    iterations : int, optional
+        Epochs of the static stage and of each dynamic frame (as ``--iterations``).
+    workers, scheduler : optional
+        Run the dynamic and biophysical frames on a local Dask cluster of
+        ``workers`` single-threaded processes, or on the Dask scheduler at
+        ``scheduler`` (e.g. ``"tcp://10.0.0.1:8786"``); default: in this process.
+    resume, overwrite : bool
+        See ``outdir``.
+    progress : bool
+        Stage headers and progress bars on stderr.
+    variant : str
+        A JIT autodiff polarized Mitsuba variant (``cuda_ad_mono_polarized`` on a GPU).
+
+    Returns
+    -------
+    Reconstruction
+        Reads the maps (``.maps(stage, frame)``), loss histories (``.metrics``)
+        and stage times (``.timings``); ``.failed`` lists frames that did not finish.
+    """
+    started = time.perf_counter()
+    stages = stage_list(stages)
+    check_variant(variant, mi.variants())
+    holdout = list(dict.fromkeys(holdout))
+    config = run_config(config, iterations)
+    capture = load_input_capture(capture, frame)
+    check_frame_and_holdout(capture, frame, holdout)
+    if texture is None:
+        texture = (int(capture.truth.texture_size) if capture.truth is not None
+                   else DEFAULT_TEXTURE)
+    outdir = Path(outdir)
+    if outdir.exists() and not outdir.is_dir():
+        raise CommandError(f"output directory '{outdir}' exists and is not a directory")
+    settings = run_settings(stages, config, holdout, frame)
+    if overwrite and stages[0] != STAGES[0]:
+        # overwriting removes the static maps, which these stages would then read
+        raise CommandError(f"--overwrite with --stages {','.join(stages)} would remove the "
+                           "static maps those stages read; include 'static' in --stages to "
+                           "start over, or drop --overwrite to add to the run in "
+                           f"'{outdir}'")
+    # later stages on an earlier run read its maps and add their own (no resume needed)
+    continuing = stages[0] != STAGES[0]
+    if resume and not continuing and outdir.is_dir() and any(outdir.iterdir()):
+        differences = resume_differences(outdir, capture.directory, texture, settings)
+        if differences:
+            raise CommandError(f"cannot resume in '{outdir}': it holds a run with other settings "
+                               f"({'; '.join(differences)}); rerun with its settings to continue "
+                               "it, or pass --overwrite instead of --resume to start over")
+    select_variant(variant)
+    if continuing:
+        continue_result_directory(outdir, capture.directory, texture)
+    else:
+        prepare_result_directory(outdir, capture.directory, texture, settings, resume=resume,
+                                 overwrite=overwrite)
+
+    lines, failed = [], {}
+    for number, stage in enumerate(stages, start=1):
+        # one display across stages: each stage's header and bars carry "[i/n] stage"
+        label = f"[{number}/{len(stages)}] {stage}"
+        if progress:
+            print(f"polarbssrdf reconstruct: {label}: {STAGE_TITLES[stage]}", file=sys.stderr,
+                  flush=True)
+        stage_start = time.perf_counter()
+        if stage == "static":
+            result = run_static_stage(capture, outdir, config, texture, frame=frame,
+                                      holdout=tuple(holdout), progress=progress, label=label)
+            views = _texel_views(result.path)
+            epochs = len(result.history)
+            final = result.history[-1].get("total") if result.history else None
+            lines.append(f"  static: {result.path} ({len(result.maps)} channels, {epochs} "
+                         f"epochs, {'?' if views is None else f'{views:,}'} texel-views"
+                         + (f", final loss {final:.4g}" if final is not None else "")
+                         + f", {time.perf_counter() - stage_start:.1f} s)")
+        elif stage == "dynamic":
+            report = run_dynamic_stage(capture, outdir, texture, config, holdout=tuple(holdout),
+                                       static_frame=frame, workers=workers, scheduler=scheduler,
+                                       resume=resume or continuing, progress=progress,
+                                       variant=variant, label=label)
+            failed.update(report["failed"])
+            lines.append(f"  dynamic: {len(report['done'])} frame(s) fitted"
+                         + (f", {len(report['skipped'])} already done" if report["skipped"] else "")
+                         + (f", {len(report['failed'])} failed" if report["failed"] else "")
+                         + f" -> {outdir / 'dynamic'} ({time.perf_counter() - stage_start:.1f} s)")
+        elif stage == "bio":
+            summary = run_bio_stage(capture, outdir, texture, config.bio,
+                                    resume=resume or continuing, progress=progress,
+                                    workers=workers, scheduler=scheduler, variant=variant,
+                                    label=label)
+            failed.update({f: f"bio: {reason}" for f, reason in summary["failed"].items()})
+            kinds = sorted(set(summary["source_stages"].values()))
+            lines.append(f"  bio: {len(summary['frames'])} frame(s) from the "
+                         f"{' and '.join(kinds)} maps -> {outdir / 'bio'} (maps, previews, "
+                         f"summary.json; {time.perf_counter() - stage_start:.1f} s)")
+        record_stage_seconds(outdir, {stage: time.perf_counter() - stage_start})
+    return Reconstruction(outdir, capture=capture.directory, texture=texture, frame=frame,
+                          holdout=holdout, seconds=time.perf_counter() - started,
+                          stage_lines=lines, failed=failed)
+
+
+def evaluate_inputs(outdir, truth=None, variant=DEFAULT_VARIANT):
+    """Check :func:`evaluate`'s inputs before any work; returns the capture with the truth."""
+    if not variant.endswith("mono_polarized") or variant not in mi.variants():
+        usable = jit_mono_polarized_variants(mi.variants())
+        raise CommandError(f"--variant {variant!r}: held-out views are re-rendered per band "
+                           f"in an available JIT mono polarized variant; use one of: "
+                           f"{', '.join(usable) or DEFAULT_VARIANT}")
+    ResultDirectory(outdir)  # the clear error when outdir is not a result
+    return truth_capture(Path(outdir), truth)
+
+
+def evaluate(outdir, truth=None, *, frame=0, stage="static", spp=DEFAULT_SPP,
+             variant=DEFAULT_VARIANT) -> dict:
+    """Score a result's maps against a synthetic capture's ground truth (what ``evaluate``
+    prints).
+
+    Parameters
+    ----------
+    outdir : path
+        A result directory.
+    truth : path or Capture, optional
+        The capture with ground truth; default the one ``result.json`` records.
+    frame : int
+        The frame to score.
+    stage : str
+        Whose maps: ``"static"``, ``"dynamic"`` or ``"bio"``.
+    spp : int
+        Samples per pixel of the held-out re-renders.
+    variant : str
+        A JIT mono polarized Mitsuba variant for the re-renders.
+
+    Returns
+    -------
+    dict
+        MAE, relative errors and normal angles next to the best constant map's,
+        and the held-out re-render errors (docs/reconstruct.md).
+    """
+    capture = evaluate_inputs(outdir, truth, variant)
+    select_variant(variant)
+    return evaluate_result(Path(outdir), capture, frame=frame, stage=stage, spp=spp,
+                           variant=variant)

@@ -1,0 +1,311 @@
+"""The fit both polarimetric stages run: epochs of patch steps, checkpoints, confidence, final maps.
+
+:func:`run_polarimetric_fit` optimizes the maps of one frame on its
+texture-space observations (:mod:`polarbssrdf.inverse.observations`) and returns
+them in the result format (:mod:`polarbssrdf.inverse.results.directory`); the
+static stage (:mod:`.static`, supplement sec. 5.1) runs it from constant start
+maps, the dynamic stage (:mod:`.dynamic`, sec. 5.2) from the static maps with
+the index and roughness held.
+
+Each epoch visits every patch in a seeded random order (a texture of one
+patch repeats it ``min_steps_per_epoch`` times) and takes one optimizer step
+on it (:mod:`polarbssrdf.inverse.polarimetric.optimize`). After every
+epoch the maps, the optimizer state and the loss history are checkpointed
+atomically, so a killed run resumes at the last finished epoch and ends
+with the same maps as an uninterrupted one. A step's gradient does not
+depend on how many threads Dr.Jit runs it on (its per-texel sums are taken
+in a fixed order, see :func:`polarbssrdf.inverse.polarimetric.optimize.patch_leaves`), so
+runs repeat bit for bit on any number of cores.
+
+Confidence: ``min(1, n / 8)`` for a texel with ``n`` usable texel-views
+(view and light cosines above ``min_cosine`` with the final normals), 0
+below ``min_views`` and 0 where the fitted model leaves residuals far above
+the typical texel's (:func:`texel_confidence`); confidence-0 texels (and
+texels off the mesh) take the values of their confident neighbours
+(normalized Gaussian fill), never NaN.
+
+Specular peak angle (``specular_peak_angle``, degrees): between the fitted
+normal and the closest half vector among the texel's usable texel-views.
+With near-coaxial light a view samples a texel's glossy lobes near their
+peak only when it looks at the texel nearly head-on; where this angle is
+large the lobes were seen on their tails alone, so ``alpha_s`` and ``rho_s``
+rest on the tail's shape and on the smoothness prior (eq. 35), while ``eta``,
+``rho_sss`` and the normals are still measured. On a 12-view sphere the
+``alpha_s`` error is 0.003 where the angle is below 10 degrees and 0.029
+above 30 degrees (bench/RESULTS.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from polarbssrdf.geometry.height import normals_from_height
+from polarbssrdf.inverse.polarimetric.config import OPTIMIZED
+from polarbssrdf.inverse.polarimetric.model import half_vector_cosine
+from polarbssrdf.inverse.polarimetric.optimize import (
+    MapParameters,
+    active_weights,
+    optimizer_step,
+    per_view_normals,
+    texel_view_terms,
+)
+from polarbssrdf.inverse.polarimetric.patches import PatchCache, patch_order, texture_patches
+from polarbssrdf.inverse.results.fill import fill_from_neighbours
+from polarbssrdf.io.atomic import atomic_write_bytes
+
+FULL_CONFIDENCE_VIEWS = 8
+INITIAL_RHO_SSS = 0.5
+
+
+@dataclasses.dataclass
+class StageResult:
+    """What a polarimetric stage returns: the maps (channel -> (T, T)) and the loss history."""
+
+    maps: dict
+    history: list
+    path: Path | None = None
+
+
+def initial_parameters(config, texture_size, n_bands, start=None):
+    """Start maps: the config's constants, or ``start`` maps where given."""
+    maps = {name: np.full((texture_size, texture_size), config.initial[name], np.float32)
+            for name in OPTIMIZED}
+    rho_sss = np.full((n_bands, texture_size, texture_size), INITIAL_RHO_SSS, np.float32)
+    for name, values in (start or {}).items():
+        if name in maps:
+            maps[name] = np.asarray(values, np.float32)
+    return maps, rho_sss
+
+
+def run_fingerprint(config, texture_size, bands, texel_views):
+    """What a checkpoint must share with the run that resumes it (a short hash)."""
+
+    settings = dict(config.to_json())
+    settings.pop("iterations")  # a run may be extended by more epochs
+    settings.pop("bio", None)  # the later stages' settings do not change this fit
+    settings.pop("dynamic", None)
+    text = json.dumps({"config": settings, "texture": int(texture_size), "bands": list(bands),
+                       "texel_views": int(texel_views)}, sort_keys=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def _text_array(text):
+    return np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+
+
+def save_checkpoint(path, params, epoch, history, fingerprint=""):
+    """Write the optimizer state after ``epoch`` epochs, atomically."""
+
+    buffer = io.BytesIO()
+    state = params.state()
+    np.savez(buffer, epoch=np.int64(epoch), history=_text_array(json.dumps(history)),
+             fingerprint=_text_array(fingerprint), **state)
+    atomic_write_bytes(path, buffer.getvalue(), overwrite=True)
+
+
+def load_checkpoint(path, params, fingerprint=""):
+    """Restore ``params`` from a checkpoint; returns ``(epochs_done, history)``.
+
+    Refuses a checkpoint written by a run with other settings (``fingerprint``).
+    """
+    with np.load(path) as data:
+        state = {key: data[key] for key in data.files}
+    stored = bytes(state.get("fingerprint", np.zeros(0, np.uint8))).decode("utf-8")
+    if stored != fingerprint:
+        raise ValueError(f"checkpoint {path} was written by a run with other settings (config, "
+                         "texture, bands or observations); remove it or rerun with those "
+                         "settings")
+    params.restore(state)
+    history = json.loads(bytes(state["history"]).decode("utf-8"))
+    return int(state["epoch"]), history
+
+
+def _epoch_summary(records):
+    """Mean of each loss term over an epoch's steps (skipped steps and dropped texel-views
+    counted, not averaged)."""
+    records = [r for r in records if r is not None]
+    if not records:
+        return {}
+    taken = [r for r in records if not r.get("skipped")] or records
+    summary = {key: float(np.mean([r[key] for r in taken])) for key in records[0]}
+    for key in ("skipped", "dropped_views"):
+        summary[key] = float(sum(r.get(key, 0.0) for r in records))
+    return summary
+
+
+def epoch_noise(config, history):
+    """The noise unit of the next epoch: the config's, or (``estimate_noise``) the RMS
+    ``I_sss`` residual of the last epoch relative to the mean ``I_sss``, never below the
+    config's value.
+
+    The last epoch's ``L_sss`` is a chi-square in units of its own noise, so its
+    square root rescales that noise to the residual the fit actually leaves.
+    """
+    if not config.estimate_noise or not history:
+        return config.photometric_noise
+    last = history[-1]
+    previous = last.get("photometric_noise", config.photometric_noise)
+    chi_square = last.get("sss", float("nan"))
+    if not np.isfinite(chi_square):
+        return previous
+    return float(max(config.photometric_noise, previous * np.sqrt(max(chi_square, 0.0))))
+
+
+def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, weights=None,
+                  description="fit"):
+    """Run the epochs of a polarimetric stage (resuming from ``checkpoint`` when it exists).
+
+    Returns the loss history (one summary per epoch).
+    """
+
+    weights = active_weights(config, weights)
+    patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
+    cache = PatchCache(store, atlas)
+    fingerprint = run_fingerprint(config, atlas.resolution, store.bands, len(store))
+    history, first = [], 0
+    if checkpoint is not None and Path(checkpoint).is_file():
+        first, history = load_checkpoint(checkpoint, params, fingerprint)
+        if first > config.iterations:
+            raise ValueError(f"checkpoint {checkpoint} holds {first} epochs, more than the "
+                             f"{config.iterations} asked for")
+    with tqdm(total=config.iterations, initial=first, desc=description, unit="epoch",
+              disable=not progress) as bar:
+        for epoch in range(first, config.iterations):
+            params.scale_learning_rates(
+                config.final_learning_rate ** (epoch / max(config.iterations - 1, 1)))
+            epoch_config = dataclasses.replace(config, photometric_noise=epoch_noise(config,
+                                                                                     history))
+            records = [optimizer_step(params, cache.get(patch), epoch_config, weights)
+                       for patch in patch_order(patches, epoch, config.seed,
+                                                config.min_steps_per_epoch)]
+            summary = _epoch_summary(records)
+            summary["epoch"] = epoch + 1
+            summary["photometric_noise"] = epoch_config.photometric_noise
+            history.append(summary)
+            if checkpoint is not None:
+                save_checkpoint(checkpoint, params, epoch + 1, history, fingerprint)
+            bar.set_postfix(loss=f"{summary.get('total', float('nan')):.3g}")
+            bar.update()
+    return history, cache
+
+
+UNSEEN_PEAK_ANGLE_DEG = 90.0
+"""``specular_peak_angle`` of a texel without usable texel-views."""
+
+
+@dataclasses.dataclass
+class TexelStatistics:
+    """Per texel (T, T) float64 summaries of the fitted texel-views.
+
+    Attributes
+    ----------
+    counts : array
+        Usable texel-views (view and light cosines above ``min_cosine``).
+    chi_square : array
+        Their mean chi-square of ``I_sss`` and ``I_s`` per texel-view and band (NaN where unseen).
+    specular_peak_angle : array
+        Degrees between the fitted normal and the closest half vector of the
+        usable texel-views (:data:`UNSEEN_PEAK_ANGLE_DEG` where unseen).
+    """
+
+    counts: np.ndarray
+    chi_square: np.ndarray
+    specular_peak_angle: np.ndarray
+
+
+def texel_statistics(params, cache, patches, config):
+    """:class:`TexelStatistics` of the current maps over every patch."""
+
+    T = params.resolution
+    counts = np.zeros(T * T, np.float64)
+    chi_square = np.zeros(T * T, np.float64)
+    peak_cosine = np.full(T * T, -1.0, np.float64)
+    for patch in patches:
+        prepared = cache.get(patch)
+        if len(prepared) == 0:
+            continue
+        per_view, weight, _, leaves = texel_view_terms(params, prepared, config, solve_albedo=False)
+        texel = prepared.window_index[prepared.texel_numpy]
+        usable = np.array(weight)
+        np.add.at(counts, texel, usable)
+        residual = (np.array(per_view["sss"]) + np.array(per_view["s"])) / len(prepared.observed)
+        np.add.at(chi_square, texel, residual)
+        normal = per_view_normals(leaves["dH_du"], leaves["dH_dv"], prepared)
+        cosine = np.array(half_vector_cosine(prepared.geometry, normal), np.float64)
+        np.maximum.at(peak_cosine, texel, np.where(usable > 0, cosine, -1.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(counts > 0, chi_square / counts, np.nan)
+    angle = np.where(counts > 0, np.degrees(np.arccos(np.clip(peak_cosine, -1.0, 1.0))),
+                     UNSEEN_PEAK_ANGLE_DEG)
+    return TexelStatistics(counts.reshape(T, T), mean.reshape(T, T), angle.reshape(T, T))
+
+
+def texel_confidence(counts, chi_square, valid, config):
+    """``min(1, n / 8)``; 0 below ``min_views``, off the mesh, and where the model does not fit.
+
+    A texel whose texel-views' mean chi-square exceeds ``residual_limit`` times
+    the median over texels is light the per-texel model cannot explain (glossy
+    interreflection in concave regions, a shadow edge, a wrong geometry):
+    its values are replaced by its neighbours'.
+    """
+    confidence = np.where(counts >= config.min_views,
+                          np.minimum(1.0, counts / FULL_CONFIDENCE_VIEWS), 0.0)
+    seen = (counts > 0) & np.isfinite(chi_square)
+    if config.residual_limit > 0 and seen.any():
+        limit = config.residual_limit * max(float(np.median(chi_square[seen])), 1e-12)
+        confidence = np.where(seen & (chi_square > limit), 0.0, confidence)
+    return np.where(valid, confidence, 0.0)
+
+
+def fill_from_confident(values, confident, sigma=2.0):
+    """Replace non-confident texels by the Gaussian-weighted mean of confident ones (growing)."""
+
+    return fill_from_neighbours(values, confident, sigma).astype(np.float32)
+
+
+def final_maps(params, atlas, confidence, band_names, specular_peak_angle=None):
+    """The result channels: maps filled where confidence is 0, normals, confidence and
+    (when given) the specular peak angle."""
+
+    confident = (confidence > 0) & atlas.valid
+    maps = params.to_numpy()
+    channels = {}
+    for name in OPTIMIZED:
+        channels[name] = fill_from_confident(maps[name], confident)
+    for band, name in enumerate(band_names):
+        channels[f"rho_sss.{name}"] = fill_from_confident(params.rho_sss[band], confident)
+    normal = normals_from_height(channels["displacement"] * atlas.valid, atlas)
+    for axis, component in zip("xyz", np.moveaxis(normal, -1, 0)):
+        channels[f"normal.{axis}"] = component.astype(np.float32)
+    channels["confidence"] = confidence.astype(np.float32)
+    if specular_peak_angle is not None:
+        channels["specular_peak_angle"] = np.where(atlas.valid, specular_peak_angle,
+                                                   UNSEEN_PEAK_ANGLE_DEG).astype(np.float32)
+    return channels
+
+
+def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, progress=True,
+                         weights=None, optimized=OPTIMIZED, description="fit", params=None):
+    """Optimize maps on a store and return :class:`StageResult` (maps in the result format)."""
+    maps, rho_sss = initial_parameters(config, atlas.resolution, len(store.bands), start)
+    if start is not None:
+        for band, name in enumerate(store.bands):
+            if f"rho_sss.{name}" in start:
+                rho_sss[band] = np.asarray(start[f"rho_sss.{name}"], np.float32)
+    if params is None:
+        params = MapParameters(maps, rho_sss, config.learning_rates, optimized, config.optimizer,
+                               config.initial["eta"] if config.glossy_amplitudes else None)
+    history, cache = optimize_maps(store, atlas, config, params, checkpoint, progress, weights,
+                                   description)
+    patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
+    statistics = texel_statistics(params, cache, patches, config)
+    confidence = texel_confidence(statistics.counts, statistics.chi_square, atlas.valid, config)
+    return StageResult(final_maps(params, atlas, confidence, store.bands,
+                                  statistics.specular_peak_angle), history)

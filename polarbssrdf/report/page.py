@@ -1,0 +1,629 @@
+"""The HTML report of a result directory (``polarbssrdf report OUTDIR``, :mod:`.commands`).
+
+:func:`write_report` turns a result directory (``polarbssrdf reconstruct``)
+into one self-contained HTML file: every figure is a PNG inlined as a
+``data:`` URI, so the file can be mailed or archived alone. The figures
+(:mod:`polarbssrdf.report.figures`, matplotlib) are:
+
+* the capture's input views, I0 and I90 of one band;
+* each static map next to its truth and its error map, with colour bars and units;
+* the normal map, the truth's, and the angle between them;
+* the dynamic frames' change of subsurface albedo against the first frame;
+* the biophysical maps of the first and last frame, their region means over
+  time with the truth, and the region summary in the layout of the
+  supplement's Table 2;
+* a view re-rendered with the recovered maps beside the capture
+  (:mod:`polarbssrdf.inverse.evaluation.rerender`), the held-out camera if the run held one out;
+* the loss curves of every stage, and the metrics table
+  (:func:`polarbssrdf.inverse.evaluation.scores.evaluate_stages`).
+
+Without ground truth (a real capture) the report shows the recovered maps,
+the loss curves and the re-rendering residuals only.
+
+A small script at the end of the page marks images that failed to decode
+(``<body data-images-broken>``), which the browser test reads.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import html
+import json
+import time
+from collections import OrderedDict
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from polarbssrdf.errors import CommandError
+from polarbssrdf.geometry import texel_atlas, to_mitsuba
+from polarbssrdf.geometry.height import normals_from_height
+from polarbssrdf.inverse.biophysical.model import PARAMETERS as BIO_PARAMETERS
+from polarbssrdf.inverse.biophysical.stage import UNITS, region_masks, region_summary
+from polarbssrdf.inverse.evaluation.rerender import captured_view, render_view, separation_errors
+from polarbssrdf.inverse.evaluation.scores import evaluate_stages, truth_capture
+from polarbssrdf.inverse.results.directory import REPORT_FILE, RESULT_FILE, read_result
+from polarbssrdf.io.atomic import atomic_write_text
+from polarbssrdf.io.exr import read_exr
+from polarbssrdf.report.figures import (
+    changes_over_frames_png,
+    input_views_png,
+    loss_curves_png,
+    map_comparison_png,
+    normals_png,
+    region_series_png,
+    rerender_png,
+)
+from polarbssrdf.variants import DEFAULT_VARIANT
+
+INPUT_VIEWS = 3
+"""Cameras of the static frame shown as input views."""
+RERENDER_SPP = 4
+"""Samples per pixel of the report's re-rendered view (its residuals are dominated by the
+fit, not by 4 spp of a direct-light render)."""
+
+STATIC_MAPS = ("eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement")
+RELATIVE_ERROR_MAPS = ("rho_s", "rho_ss")
+
+
+class LazyFrames(Mapping):
+    """``frame -> channels``, read from disk when asked for; the last few are kept.
+
+    A sequence of 2K maps is gigabytes: the report holds a handful of frames
+    at a time, never the whole sequence.
+    """
+
+    KEEP = 3
+
+    def __init__(self, frames, read):
+        self._frames = sorted(int(f) for f in frames)
+        self._read = read
+        self._cache = OrderedDict()
+
+    def __getitem__(self, frame):
+        frame = int(frame)
+        if frame not in self._frames:
+            raise KeyError(frame)
+        if frame in self._cache:
+            self._cache.move_to_end(frame)
+        else:
+            self._cache[frame] = self._read(frame)
+            while len(self._cache) > self.KEEP:
+                self._cache.popitem(last=False)
+        return self._cache[frame]
+
+    def __iter__(self):
+        return iter(self._frames)
+
+    def __len__(self):
+        return len(self._frames)
+
+    def __contains__(self, frame):
+        return int(frame) in self._frames
+
+
+def shown_frames(frames, count=4):
+    """Up to ``count`` frames spread over ``frames`` (sorted), the first and last included."""
+    frames = sorted(frames)
+    if len(frames) <= count:
+        return frames
+    picks = np.linspace(0, len(frames) - 1, count).round().astype(int)
+    return [frames[i] for i in sorted(set(picks))]
+
+
+@dataclass
+class ReportData:
+    """Everything the report shows, read from a result directory and its capture."""
+
+    result_dir: Path
+    manifest: object
+    capture: object
+    atlas: object
+    maps: dict = field(default_factory=dict)
+    """``{stage: LazyFrames}`` of the registered maps."""
+    truth: Mapping = field(default_factory=dict)
+    """``LazyFrames`` of the capture's ground truth (empty for a real capture)."""
+    losses: dict = field(default_factory=dict)
+    """``OUTDIR/metrics.json``: loss history per stage."""
+    bio_summary: dict | None = None
+    timings: dict = field(default_factory=dict)
+    evaluation: dict | None = None
+    """:func:`polarbssrdf.inverse.evaluation.scores.evaluate_stages` (None without truth)."""
+
+    @property
+    def bands(self):
+        return list(self.capture.manifest.band_names)
+
+    @property
+    def units(self):
+        return dict(self.manifest.units)
+
+
+def read_json_or_default(path, default=None):
+    """The JSON in ``path``; ``default`` if there is no such file; a clear error if it is not JSON."""
+    try:
+        return json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        return default
+    except ValueError as error:
+        raise CommandError(f"'{path}' is not valid JSON ({error})") from None
+
+
+def load_report_data(result_dir, capture=None, evaluation=None, progress=None) -> ReportData:
+    """Read a result directory, its capture and (with truth) score it.
+
+    ``evaluation``: scores already computed (the demo's); computed here otherwise
+    (maps only, no held-out re-render). ``progress``: a callable given one-line
+    messages.
+    """
+
+    result_dir = Path(result_dir)
+    if not (result_dir / RESULT_FILE).is_file():
+        if not result_dir.exists():
+            raise FileNotFoundError(f"result directory '{result_dir}' does not exist")
+        raise FileNotFoundError(f"'{result_dir}' holds no {RESULT_FILE}: not a result directory "
+                                "(write one with 'polarbssrdf reconstruct')")
+    manifest = read_result(result_dir)
+    if not manifest.maps:
+        raise CommandError(f"'{result_dir}' lists no maps yet: run 'polarbssrdf reconstruct' "
+                           "to the end (or with --resume) first")
+    try:
+        capture = truth_capture(result_dir, capture)
+    except FileNotFoundError as error:
+        raise FileNotFoundError(str(error).replace("pass --truth CAPTURE",
+                                                   "pass --capture CAPTURE")) from None
+    atlas = texel_atlas(to_mitsuba(capture.load_mesh()), manifest.texture_size)
+    data = ReportData(result_dir=result_dir, manifest=manifest, capture=capture, atlas=atlas)
+    paths = {}
+    for record in manifest.maps:
+        paths.setdefault(record["stage"], {})[int(record["frame"])] = result_dir / record["path"]
+    for stage, files in paths.items():
+        data.maps[stage] = LazyFrames(files, lambda frame, files=files: read_exr(files[frame])[0])
+    if capture.truth is not None:
+        if int(capture.truth.texture_size) == int(manifest.texture_size):
+            data.truth = LazyFrames([r.frame for r in capture.truth.maps], capture.truth_maps)
+        elif progress:
+            progress(f"the truth is {capture.truth.texture_size}^2 texels, the result "
+                     f"{manifest.texture_size}^2: shown without truth")
+    data.losses = read_json_or_default(result_dir / "metrics.json", {}) or {}
+    data.bio_summary = read_json_or_default(result_dir / "bio" / "summary.json")
+    data.timings = read_json_or_default(result_dir / "timings.json", {}) or {}
+    if data.truth:
+        data.evaluation = evaluation if evaluation is not None else evaluate_stages(
+            result_dir, capture, holdout=False)
+    return data
+
+
+# --------------------------------------------------------------------------- figures
+def _image(png: bytes, alt: str) -> str:
+    encoded = base64.b64encode(png).decode("ascii")
+    return f'<img src="data:image/png;base64,{encoded}" alt="{html.escape(alt)}">'
+
+
+def _static_mask(data, maps):
+    return np.asarray(data.atlas.valid, bool) & (np.asarray(maps["confidence"]) > 0)
+
+
+def _bio_mask(data, maps):
+    return np.asarray(data.atlas.valid, bool) & (np.asarray(maps.get("flagged", 0.0)) == 0)
+
+
+def _static_frame(data):
+    return int(data.manifest.settings.get("frame", 0))
+
+
+def input_views_section(data) -> str:
+
+    frame = _static_frame(data)
+    records = [r for r in data.capture.manifest.frame(frame).images
+               if r.kind in ("analyser", "raw")]
+    chosen, seen = [], set()
+    for record in records:
+        if record.camera not in seen:
+            chosen.append(record)
+            seen.add(record.camera)
+    step = max(len(chosen) // INPUT_VIEWS, 1)
+    chosen = chosen[::step][:INPUT_VIEWS]
+    band = _display_band(data.bands)
+    views = []
+    for record in chosen:
+        images = captured_view(data.capture, record)[band]
+        views.append((f"{record.camera} ({band})", images["I0"], images["I90"]))
+    kind = "raw sensor mosaics, demosaicked" if chosen and chosen[0].kind == "raw" else \
+        "analyser images"
+    return (f"<p>Frame {frame}, {len(seen)} cameras ({kind}); {len(chosen)} shown. I90 blocks "
+            "most "
+            "of the specular reflection (the light is polarized at 0 degrees), so "
+            "I0 - I90 is the specular part and 2 I90 the subsurface part (eq. 22-24).</p>"
+            + _image(input_views_png(views, "linear radiance"), "input views"))
+
+
+def _display_band(bands):
+    for band in bands:
+        if band.upper().startswith("G"):
+            return band
+    return bands[len(bands) // 2]
+
+
+def static_maps_section(data) -> str:
+
+    frame = _static_frame(data)
+    maps = data.maps["static"][frame]
+    truth = data.truth.get(frame)
+    mask = _static_mask(data, maps)
+    parts = []
+    names = list(STATIC_MAPS) + [f"rho_sss.{band}" for band in data.bands]
+    for name in names:
+        if name not in maps:
+            continue
+        reference = truth.get(name) if truth is not None else None
+        relative = name in RELATIVE_ERROR_MAPS or name.startswith("rho_sss")
+        unit = data.units.get(name.split(".")[0], "1")
+        parts.append(_image(map_comparison_png(name, maps[name], reference, mask, unit,
+                                               relative), f"{name} map"))
+    parts.append(_image(map_comparison_png("confidence", maps["confidence"], None,
+                                           np.asarray(data.atlas.valid, bool)),
+                        "confidence map"))
+    note = ""
+    if "specular_peak_angle" in maps:
+        parts.append(_image(map_comparison_png("specular_peak_angle", maps["specular_peak_angle"],
+                                               None, mask, "deg"), "specular peak angle map"))
+        note = (" The specular peak angle is the angle between the normal and the closest half "
+                "vector of the texel's views: where it is large the glossy lobes were seen on "
+                "their tails only, and alpha_s and rho_s rest on the smoothness prior.")
+    return ("<p>Texels with confidence 0 (too few views, or a fit far worse than the median) "
+            "and texels off the mesh are grey. Albedo errors are relative to the truth."
+            + note + "</p>" + "\n".join(parts))
+
+
+def normals_section(data) -> str:
+
+    frame = _static_frame(data)
+    maps = data.maps["static"][frame]
+    recovered = np.stack([maps[f"normal.{axis}"] for axis in "xyz"], axis=-1)
+    truth = None
+    if frame in data.truth:
+        valid = np.asarray(data.atlas.valid, bool)
+        height = np.nan_to_num(np.asarray(data.truth[frame]["displacement"], np.float64)) * valid
+        truth = normals_from_height(height, data.atlas)
+    return ("<p>Object-space normals of the base mesh displaced by the recovered H "
+            "(eq. 25).</p>" + _image(normals_png(recovered, truth, _static_mask(data, maps)),
+                                     "normal maps"))
+
+
+def dynamic_section(data) -> str:
+
+    dynamic = data.maps.get("dynamic", {})
+    if not dynamic:
+        return ""
+    static_frame = _static_frame(data)
+    frames = [static_frame] + shown_frames(list(dynamic))
+    band = _display_band(data.bands)
+    name = f"rho_sss.{band}"
+    recovered, truth = {}, {}
+    mask = np.asarray(data.atlas.valid, bool)
+    for frame in frames:
+        maps = data.maps["static" if frame == static_frame else "dynamic"][frame]
+        recovered[frame] = maps[name]
+        mask &= np.asarray(maps["confidence"]) > 0
+        if frame in data.truth:
+            truth[frame] = data.truth[frame][name]
+    truth = truth if len(truth) == len(frames) else None
+    shown = "" if len(frames) - 1 == len(dynamic) else f" ({len(frames) - 1} shown)"
+    return (f"<p>{len(dynamic)} frame(s) fitted from the static maps (eta and roughness "
+            f"held){shown}. The change of the subsurface albedo in band {band} against frame "
+            f"{static_frame} shows where the skin flushes.</p>"
+            + _image(changes_over_frames_png(name, recovered, truth, mask), "albedo changes"))
+
+
+def biophysical_section(data) -> str:
+
+    bio = data.maps.get("bio", {})
+    if not bio:
+        return ""
+    frames = sorted(bio)
+    parts = []
+    for frame in sorted({frames[0], frames[-1]}):
+        maps = bio[frame]
+        truth = data.truth.get(frame)
+        mask = _bio_mask(data, maps)
+        parts.append(f"<h3>Frame {frame}</h3>")
+        for name in BIO_PARAMETERS:
+            reference = truth.get(name) if truth is not None else None
+            parts.append(_image(map_comparison_png(name, maps[name], reference, mask,
+                                                   UNITS[name]), f"{name} frame {frame}"))
+        parts.append(_image(map_comparison_png("residual", maps["residual"], None,
+                                               np.asarray(data.atlas.valid, bool),
+                                               f"{UNITS['residual']} (RMS over bands)"),
+                            f"residual frame {frame}"))
+    summary = data.bio_summary
+    truth_summary = None
+    if summary is not None:
+        if all(f in data.truth for f in frames):
+            masks = region_masks(data.capture, data.capture.load_mesh(), data.atlas)
+            truth_summary = merged_region_summary(data.truth, frames, masks)
+        units = summary.get("units", {})
+        parts.append("<h3>Hemoglobin over time</h3>")
+        parts.append(_image(region_series_png(["C_h_out", "C_h_in"], summary, truth_summary,
+                                              units), "hemoglobin over time"))
+        parts.append("<h3>Region summary (the layout of the supplement's Table 2)</h3>")
+        parts.append(table2_html(summary, truth_summary, frames))
+    return ("<p>Melanin (C_m), eumelanin ratio (beta_m) and hemoglobin of the epidermis "
+            "(C_h_out) and dermis (C_h_in), fitted to the subsurface albedo of every "
+            "band (eq. 40-47). Flagged texels are grey.</p>" + "\n".join(parts))
+
+
+def merged_region_summary(maps, frames, masks):
+    """:func:`~polarbssrdf.inverse.biophysical.stage.region_summary` of ``frames``, one frame in
+    memory at a time."""
+
+    merged = None
+    for frame in frames:
+        part = region_summary({frame: maps[frame]}, masks)
+        if merged is None:
+            merged = part
+            continue
+        for region, entry in part["regions"].items():
+            merged["regions"].setdefault(region, {"texels": entry["texels"], "frames": {}})
+            merged["regions"][region]["frames"].update(entry["frames"])
+    return merged
+
+
+def table2_html(summary, truth_summary, frames) -> str:
+    """Mean +- std per region (rows) and parameter (columns), first and last frame."""
+    shown = sorted({frames[0], frames[-1]})
+    header = "".join(f"<th>{html.escape(p)}</th>" for p in BIO_PARAMETERS)
+    rows = []
+    for region, entry in summary["regions"].items():
+        for frame in shown:
+            sources = [("recovered", entry["frames"].get(str(frame)))]
+            if truth_summary is not None and region in truth_summary["regions"]:
+                sources.append(("truth", truth_summary["regions"][region]["frames"]
+                                .get(str(frame))))
+            for label, values in sources:
+                if values is None:
+                    continue
+                cells = "".join(f"<td>{values[p]['mean']:.4f} &plusmn; {values[p]['std']:.4f}"
+                                "</td>" for p in BIO_PARAMETERS)
+                rows.append(f"<tr><td>{html.escape(region)}</td><td>{frame}</td>"
+                            f"<td>{label}</td>{cells}</tr>")
+    return (f"<table><tr><th>region</th><th>frame</th><th></th>{header}</tr>"
+            + "".join(rows) + "</table>")
+
+
+def rerender_section(data, variant) -> str:
+
+    frame = _static_frame(data)
+    maps = data.maps["static"][frame]
+    holdout = list(data.manifest.settings.get("holdout") or [])
+    if holdout:
+        camera, why = holdout[0], "held out of the fit"
+    else:
+        camera = next(r.camera for r in data.capture.manifest.frame(frame).images
+                      if r.kind in ("analyser", "raw"))
+        why = "one of the fitted views (the run held no camera out)"
+    view = render_view(data.capture, maps, camera, frame, spp=RERENDER_SPP,
+                       variant=variant)
+    observed = captured_view(data.capture, view["record"])
+    band = _display_band(data.bands)
+    errors = separation_errors(observed[band], view["images"][band], view["mask"])
+    return (f"<p>Camera {html.escape(camera)}, {why}, re-rendered through Mitsuba with the "
+            f"<code>pbssrdf</code> plugin, the recovered maps and the displaced mesh "
+            f"({RERENDER_SPP} spp, band {band}). RMSE over {errors['pixels']:,} pixels: "
+            f"I_s {100 * errors['relative_rmse_I_s']:.2f}%, I_sss "
+            f"{100 * errors['relative_rmse_I_sss']:.2f}% of the mean captured I_sss.</p>"
+            + _image(rerender_png(camera, band, observed[band], view["images"][band],
+                                  view["mask"], "linear radiance"), "re-rendered view"))
+
+
+def losses_section(data) -> str:
+
+    losses = data.losses
+    if not any(losses.get(k) for k in ("static", "dynamic", "bio")):
+        return "<p>No loss history in metrics.json.</p>"
+    return ("<p>Data terms are mean chi-squares per texel-view (about 1 when the fit "
+            "reaches the noise); the total includes the weighted regularizers.</p>"
+            + _image(loss_curves_png(losses.get("static"), losses.get("dynamic"),
+                                     losses.get("bio")), "loss curves"))
+
+
+# --------------------------------------------------------------------------- metrics table
+def _ratio(constant, value):
+    if value is None or constant is None or not value > 0:
+        return "-"
+    return f"{constant / value:.2f}x"
+
+
+def metrics_html(evaluation) -> str:
+    """The evaluate figures of every stage as HTML tables."""
+    parts = []
+    static = evaluation.get("static")
+    if static:
+        maps = static["maps"]
+        rows = []
+        for name in ("eta", "alpha_s", "alpha_ss", "displacement"):
+            entry = maps[name]
+            rows.append(f"<tr><td>{name}</td><td>MAE</td><td>{entry['mae']:.4f}</td>"
+                        f"<td>{entry['constant_mae']:.4f}</td>"
+                        f"<td>{_ratio(entry['constant_mae'], entry['mae'])}</td>"
+                        f"<td>{html.escape(entry.get('unit', '1'))}</td></tr>")
+        relative = [(name, maps[name]) for name in ("rho_s", "rho_ss")]
+        relative += [(f"rho_sss.{band}", entry) for band, entry in
+                     maps["rho_sss"]["bands"].items()]
+        for name, entry in relative:
+            value, constant = entry["relative_error"], entry["constant_relative_error"]
+            if value is None:
+                continue
+            rows.append(f"<tr><td>{name}</td><td>relative error</td><td>{100 * value:.2f}%</td>"
+                        f"<td>{100 * constant:.2f}%</td><td>{_ratio(constant, value)}</td>"
+                        "<td></td></tr>")
+        normal = maps["normal"]
+        rows.append(f"<tr><td>normals</td><td>mean angle</td><td>{normal['mean_deg']:.2f}</td>"
+                    f"<td>{normal['base_mesh_mean_deg']:.2f} (base mesh)</td>"
+                    f"<td>{_ratio(normal['base_mesh_mean_deg'], normal['mean_deg'])}</td>"
+                    "<td>degree</td></tr>")
+        parts.append(f"<h3>Static stage (frame {static['frame']}, "
+                     f"{static['texels_scored']:,} texels scored)</h3>"
+                     "<table><tr><th>map</th><th>score</th><th>recovered</th>"
+                     "<th>best constant map</th><th>constant / recovered</th><th>unit</th></tr>"
+                     + "".join(rows) + "</table>")
+        holdout = static.get("holdout")
+        if holdout and holdout.get("cameras"):
+            cells = "".join(
+                f"<tr><td>{html.escape(name)}</td>"
+                f"<td>{100 * entry['mean']['relative_rmse_I_s']:.2f}%</td>"
+                f"<td>{100 * entry['mean']['relative_rmse_I_sss']:.2f}%</td>"
+                f"<td>{entry['pixels']:,}</td></tr>"
+                for name, entry in holdout["cameras"].items())
+            parts.append("<h3>Held-out views, re-rendered (RMSE of the mean captured I_sss, "
+                         f"{holdout['spp']} spp)</h3><table><tr><th>camera</th><th>I_s</th>"
+                         f"<th>I_sss</th><th>pixels</th></tr>{cells}</table>")
+    dynamic = evaluation.get("dynamic") or {}
+    if dynamic:
+        rows = []
+        for frame, entry in sorted(dynamic.items(), key=lambda kv: int(kv[0])):
+            maps = entry["maps"]
+            rows.append(f"<tr><td>{frame}</td><td>{maps['eta']['mae']:.4f}</td>"
+                        f"<td>{maps['alpha_s']['mae']:.4f}</td>"
+                        f"<td>{100 * maps['rho_s']['relative_error']:.2f}%</td>"
+                        f"<td>{100 * maps['rho_sss']['mean_relative_error']:.2f}%</td>"
+                        f"<td>{maps['normal']['mean_deg']:.2f}</td></tr>")
+        parts.append("<h3>Dynamic stage, per frame</h3><table><tr><th>frame</th>"
+                     "<th>eta MAE</th><th>alpha_s MAE</th><th>rho_s rel. error</th>"
+                     "<th>rho_sss rel. error (mean of bands)</th><th>normals (deg)</th></tr>"
+                     + "".join(rows) + "</table>")
+    bio = evaluation.get("bio") or {}
+    if bio:
+        header = "".join(f"<th>{p}</th>" for p in BIO_PARAMETERS)
+        rows = []
+        for frame, entry in sorted(bio.items(), key=lambda kv: int(kv[0])):
+            cells = "".join(
+                f"<td>{100 * entry['maps'][p]['mae_of_range']:.1f}% "
+                f"({100 * entry['maps'][p]['constant_mae_of_range']:.1f}%)</td>"
+                for p in BIO_PARAMETERS)
+            rows.append(f"<tr><td>{frame}</td>{cells}</tr>")
+        parts.append("<h3>Biophysical stage: MAE as a fraction of the Table 2 range (best "
+                     "constant map in parentheses)</h3>"
+                     f"<table><tr><th>frame</th>{header}</tr>{''.join(rows)}</table>")
+    return "\n".join(parts)
+
+
+# --------------------------------------------------------------------------- page
+STYLE = """
+body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto;
+       max-width: 1100px; color: #222; line-height: 1.45; padding: 0 1em; }
+h1 { font-size: 1.6em; } h2 { border-bottom: 1px solid #ccc; padding-bottom: .2em; margin-top: 2em; }
+img { display: block; max-width: 100%; margin: .6em 0; }
+img.broken { outline: 3px solid #c00; min-height: 2em; }
+table { border-collapse: collapse; margin: .6em 0 1.2em; font-size: .9em; }
+td, th { border: 1px solid #ccc; padding: .25em .6em; text-align: right; }
+td:first-child, th:first-child { text-align: left; }
+nav a { margin-right: 1em; } .meta { color: #555; } code { background: #f3f3f3; }
+#image-warning { color: #c00; font-weight: bold; }
+"""
+
+IMAGE_CHECK = """
+window.addEventListener("load", function () {
+  var images = document.images, broken = 0;
+  for (var i = 0; i < images.length; i++) {
+    if (!images[i].complete || images[i].naturalWidth === 0) {
+      broken++; images[i].classList.add("broken");
+    }
+  }
+  document.body.setAttribute("data-images", String(images.length));
+  document.body.setAttribute("data-images-broken", String(broken));
+  if (broken) {
+    var warning = document.getElementById("image-warning");
+    warning.textContent = broken + " image(s) failed to load";
+  }
+});
+"""
+
+
+def _timings_text(timings) -> str:
+    if not timings:
+        return ""
+    parts = [f"{stage} {seconds:.0f} s" for stage, seconds in timings.items()]
+    return "Stage wall times: " + ", ".join(parts) + "."
+
+
+def build_report_html(data, *, variant=DEFAULT_VARIANT, title=None,
+                      extra_metrics=None, progress=None) -> str:
+    """The report page of ``data`` (:func:`load_report_data`) as an HTML string.
+
+    ``extra_metrics``: ``{label: value}`` shown in the header (e.g. the demo's timings).
+    """
+    say = progress or (lambda message: None)
+    manifest = data.manifest
+    stages = [s for s in ("static", "dynamic", "bio") if s in data.maps]
+    frames = sorted({f for per_stage in data.maps.values() for f in per_stage})
+    frame_text = (", ".join(map(str, frames)) if len(frames) <= 12
+                  else f"{frames[0]}-{frames[-1]} ({len(frames)})")
+    sections = []
+
+    def add(anchor, heading, builder):
+        say(f"report: {heading.lower()}")
+        started = time.perf_counter()
+        body = builder()
+        if body:
+            sections.append((anchor, heading, body))
+        say(f"report: {heading.lower()} ({time.perf_counter() - started:.1f} s)")
+
+    if data.evaluation:
+        add("metrics", "Metrics", lambda: metrics_html(data.evaluation))
+    add("inputs", "Input views", lambda: input_views_section(data))
+    if "static" in data.maps:
+        add("static", "Static maps" + (" against the truth" if data.truth else ""),
+            lambda: static_maps_section(data))
+        add("normals", "Normals", lambda: normals_section(data))
+    if "dynamic" in data.maps:
+        add("dynamic", "Dynamic frames", lambda: dynamic_section(data))
+    if "bio" in data.maps:
+        add("bio", "Biophysical maps", lambda: biophysical_section(data))
+    if "static" in data.maps:
+        add("rerender", "Re-rendered view", lambda: rerender_section(data, variant))
+    add("losses", "Loss curves", lambda: losses_section(data))
+
+    created = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    truth_note = ("with ground truth (synthetic capture)" if data.truth else
+                  "without ground truth: maps, losses and re-rendering residuals only")
+    extra = "".join(f"<br>{html.escape(str(k))}: {html.escape(str(v))}"
+                    for k, v in (extra_metrics or {}).items())
+    nav = " ".join(f'<a href="#{a}">{html.escape(h)}</a>' for a, h, _ in sections)
+    body = "\n".join(f'<h2 id="{a}">{html.escape(h)}</h2>\n{b}' for a, h, b in sections)
+    heading = title or "polarbssrdf reconstruction"
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{html.escape(heading)}</title><style>{STYLE}</style></head>
+<body>
+<h1>{html.escape(heading)}</h1>
+<p class="meta">Result <code>{html.escape(str(data.result_dir.resolve()))}</code> of capture
+<code>{html.escape(str(manifest.capture))}</code>, {truth_note}.<br>
+{manifest.texture_size} x {manifest.texture_size} texels; stages {', '.join(stages)};
+frames {frame_text}; bands {', '.join(data.bands)}.
+{_timings_text(data.timings)}{extra}<br>Written {created} by polarbssrdf.report.page.</p>
+<p id="image-warning"></p>
+<nav>{nav}</nav>
+{body}
+<script>{IMAGE_CHECK}</script>
+</body></html>
+"""
+
+
+def write_report(result_dir, out=None, *, capture=None, evaluation=None,
+                 variant=DEFAULT_VARIANT, title=None, extra_metrics=None,
+                 progress=None) -> Path:
+    """Write the report of ``result_dir`` to ``out`` (default ``result_dir/report.html``),
+    atomically; returns its path."""
+
+    data = load_report_data(result_dir, capture, evaluation, progress)
+    page = build_report_html(data, variant=variant, title=title, extra_metrics=extra_metrics,
+                             progress=progress)
+    out = Path(out) if out is not None else Path(result_dir) / REPORT_FILE
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out, page, overwrite=True)
+    return out
