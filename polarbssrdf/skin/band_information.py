@@ -404,8 +404,8 @@ def band_pins(bounds: BandBounds, thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAU
 @dataclasses.dataclass
 class BandDesign:
     """Result of :func:`design_bands`: the chosen candidates (indices, in the order picked),
-    the criterion after each pick (greedy) and the search's name; ``exhaustive`` holds the
-    exhaustive optimum of the same size when it was computed."""
+    the criterion's value, its value after the exhaustive start and each greedy pick
+    (``history``), the search's name and how many band sets were scored."""
 
     candidates: list
     chosen: list
