@@ -69,6 +69,28 @@ TABLE2: dict[tuple[str, str], SkinParameters] = {
 }
 
 
+#: Table 2's "(std)" values: (region, skin type) -> name -> standard deviation of that
+#: parameter over the measured region of the subject (same units as the means).
+TABLE2_STD: dict[tuple[str, str], dict[str, float]] = {
+    ("forehead", "I"): {"C_m": 0.00183, "beta_m": 0.00393, "C_h_out": 0.00256, "C_h_in": 0.00563, "eta": 0.01258},
+    ("forehead", "II"): {"C_m": 0.00400, "beta_m": 0.01404, "C_h_out": 0.02069, "C_h_in": 0.00792, "eta": 0.01182},
+    ("forehead", "III"): {"C_m": 0.00228, "beta_m": 0.00658, "C_h_out": 0.00441, "C_h_in": 0.00903, "eta": 0.00759},
+    ("forehead", "IV"): {"C_m": 0.00330, "beta_m": 0.00629, "C_h_out": 0.01002, "C_h_in": 0.00837, "eta": 0.00734},
+    ("cheek", "I"): {"C_m": 0.00286, "beta_m": 0.00821, "C_h_out": 0.00637, "C_h_in": 0.00645, "eta": 0.01404},
+    ("cheek", "II"): {"C_m": 0.00434, "beta_m": 0.00971, "C_h_out": 0.00652, "C_h_in": 0.00643, "eta": 0.01083},
+    ("cheek", "III"): {"C_m": 0.00435, "beta_m": 0.01014, "C_h_out": 0.01057, "C_h_in": 0.00970, "eta": 0.01454},
+    ("cheek", "IV"): {"C_m": 0.00686, "beta_m": 0.01228, "C_h_out": 0.01790, "C_h_in": 0.01118, "eta": 0.01116},
+}
+
+
+def table2_spread_across_rows() -> dict[str, float]:
+    """Standard deviation (ddof 0) of each biophysical parameter over the eight Table 2 means:
+    the spread between skin types and regions, 2-10x the within-row "(std)" of
+    :data:`TABLE2_STD`."""
+    return {name: float(np.std([getattr(p, name) for p in TABLE2.values()]))
+            for name in ("C_m", "beta_m", "C_h_out", "C_h_in")}
+
+
 def table2_ranges() -> dict[str, tuple[float, float]]:
     """Min and max of each biophysical parameter over the Table 2 means."""
     out = {}

@@ -89,12 +89,25 @@ def default_camera_responses() -> dict:
     }
 
 
+DEFAULT_COMB_PERIOD_NM = 70.0
+DEFAULT_COMB_PHASE_NM = 440.0
+
+
+def comb_filter_pair(period_nm: float = DEFAULT_COMB_PERIOD_NM, phase_nm: float = DEFAULT_COMB_PHASE_NM) -> dict:
+    """Two complementary comb filters: 'A' passes around ``phase + m period`` (nm), 'B'
+    between its teeth (:func:`~.curves.comb_curve`, :func:`~.curves.complementary_curve`)."""
+    if not (np.isfinite(period_nm) and period_nm > 0 and np.isfinite(phase_nm)):
+        raise ValueError(f"a comb filter needs a finite period > 0 nm and a finite phase, got "
+                         f"period {period_nm!r}, phase {phase_nm!r}")
+    comb_a = comb_curve(float(period_nm), float(phase_nm))
+    return {"A": comb_a, "B": complementary_curve(comb_a)}
+
+
 def default_filters() -> dict:
     """Two complementary comb filters (70 nm period): 'A' passes around
     440, 510, 580, 650 nm and 'B' around 405, 475, 545, 615, 685 nm, so each
     camera channel splits into two bands."""
-    comb_a = comb_curve(70.0, 440.0)
-    return {"A": comb_a, "B": complementary_curve(comb_a)}
+    return comb_filter_pair()
 
 
 def default_light():
@@ -107,14 +120,55 @@ def default_light():
 def default_bands(wavelengths_nm=None) -> list[Band]:
     """The default 6 bands: {B, G, R} camera channels x {A, B} comb filters
     x white LED, sampled at 400-700 nm every 5 nm, sorted by centroid."""
+    return comb_pair_bands(DEFAULT_COMB_PERIOD_NM, DEFAULT_COMB_PHASE_NM, wavelengths_nm)
+
+
+def comb_pair_bands(period_nm, phase_nm, wavelengths_nm=None) -> list[Band]:
+    """The 6 bands of a colour camera behind a pair of complementary comb filters:
+    {B, G, R} channels (:func:`default_camera_responses`) x {A, B}
+    (:func:`comb_filter_pair`) x white LED, sampled at ``wavelengths_nm`` (400-700 nm
+    every 5 nm by default), sorted by centroid. Period 70 nm, phase 440 nm are the
+    default bands."""
     wl = wavelength_grid(400.0, 700.0, 5.0) if wavelengths_nm is None else np.asarray(wavelengths_nm, dtype=float)
+    filters = comb_filter_pair(period_nm, phase_nm)
     bands = []
     for channel, camera in default_camera_responses().items():
-        for filt_name, filt in default_filters().items():
+        for filt_name, filt in filters.items():
             band = make_band(f"{channel}{filt_name}", wl, camera, filt, default_light(),
                              description=f"camera {channel} x comb filter {filt_name} x LED-B3")
             bands.append(band)
     return sorted(bands, key=lambda b: b.centroid_nm)
+
+
+def bandpass_bands(centres_nm, fwhm_nm, wavelengths_nm=None, light="default") -> list[Band]:
+    """Bands of Gaussian bandpass filters (centre, full width at half maximum in nm) on a
+    spectrally flat (monochrome) camera under the white LED (``light=None``: none),
+    sampled at ``wavelengths_nm`` (400-700 nm every 1 nm by default); named ``bp<centre>``.
+
+    ``fwhm_nm`` is one width or one per centre. A filter with no weight on the grid is
+    refused, naming it."""
+    centres = np.atleast_1d(np.asarray(centres_nm, dtype=float))
+    widths = np.broadcast_to(np.asarray(fwhm_nm, dtype=float), centres.shape)
+    if centres.ndim != 1 or centres.size == 0:
+        raise ValueError("bandpass filters need at least one centre wavelength")
+    if not (np.all(np.isfinite(centres)) and np.all(np.isfinite(widths)) and np.all(widths > 0)):
+        raise ValueError(f"bandpass centres must be finite and widths > 0 nm, got centres "
+                         f"{centres.tolist()}, widths {widths.tolist()}")
+    wl = wavelength_grid(400.0, 700.0, 1.0) if wavelengths_nm is None else np.asarray(wavelengths_nm, dtype=float)
+    light = default_light() if light == "default" else light
+    bands = []
+    for centre, width in zip(centres, widths):
+        if not wl[0] <= centre <= wl[-1]:
+            raise ValueError(f"bandpass centre {centre:g} nm is outside the wavelength grid "
+                             f"{wl[0]:g}-{wl[-1]:g} nm")
+        name = f"bp{centre:g}"
+        bands.append(make_band(name, wl, filter=gaussian_curve(float(centre), float(width)), light=light,
+                               description=f"{width:g} nm FWHM bandpass at {centre:g} nm"
+                                           + (" x LED-B3" if light is not None else "")))
+    names = [band.name for band in bands]
+    if len(set(names)) != len(names):
+        raise ValueError(f"bandpass centres must be distinct, got {centres.tolist()}")
+    return bands
 
 
 def bands_to_json(bands) -> str:

@@ -166,9 +166,10 @@ class PreparedCapture:
 
 
 def prepare_capture(settings, bands, truth_settings=None):
-    """Rig, geometry, static truth maps and per-band blur kernels of a synthetic capture."""
-    from polarbssrdf.skin.parameters import TABLE2
+    """Rig, geometry, static truth maps and per-band blur kernels of a synthetic capture.
 
+    The kernels are the layer profiles of the maps' base skin (the Table 2 row, or its
+    bases moved by ``truth_settings.biophysical``)."""
     truth_settings = truth_settings or TruthSettings()
     base = object_mesh(settings.object)
     distance = 600.0 if settings.object == "face" else 450.0
@@ -182,7 +183,7 @@ def prepare_capture(settings, bands, truth_settings=None):
         masks = face_region_masks(settings.texture)
         flush = gaussian_filter(masks["cheeks"].astype(np.float64), 4.0)
         flush /= max(flush.max(), 1e-12)
-    kernels = layer_profile_kernels(bands, TABLE2[tuple(truth_settings.skin)])
+    kernels = layer_profile_kernels(bands, truth_settings.skin_parameters())
     return PreparedCapture(settings, list(bands), stage, base, static, kernels, truth_settings,
                            flush)
 
@@ -327,8 +328,15 @@ def capture_manifest(prepared):
 
 
 def truth_settings_json(truth_settings):
-    """The truth settings as plain JSON (tuples as lists), as a settings file would hold them."""
-    return json.loads(json.dumps(dataclasses.asdict(truth_settings)))
+    """The truth settings as plain JSON (tuples as lists), as a settings file would hold them.
+
+    ``biophysical`` and ``features`` are left out while empty, so a capture made with
+    settings that have neither records what it did before they existed (and resumes)."""
+    record = json.loads(json.dumps(dataclasses.asdict(truth_settings)))
+    for key in ("biophysical", "features"):
+        if not record[key]:
+            del record[key]
+    return record
 
 
 def truth_channels(state, bands):

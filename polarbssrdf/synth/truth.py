@@ -4,7 +4,11 @@ Every map is a smooth random field in texture space around a base value:
 white noise filtered by a Gaussian of ``correlation_mm`` (through the mean
 texel size), scaled to a standard deviation and clipped to the parameter's
 valid range. The biophysical maps start from a row of the supplement's
-Table 2; a dynamic sequence varies the hemoglobin fractions over frames.
+Table 2, or from bases of their own (:func:`table2_offset_settings` moves
+them off the row's means by a number of Table 2 spreads); localized features
+(freckles, a patch of dermal blood: :data:`FEATURE_KEYS`) multiply a map
+inside smooth-edged disks on the surface; a dynamic sequence varies the
+hemoglobin fractions over frames.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import pathlib
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from polarbssrdf.skin.parameters import TABLE2
+from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD, table2_spread_across_rows
 
 # name -> (base, standard deviation, lower bound, upper bound)
 DEFAULT_REFLECTANCE = {
@@ -29,6 +33,19 @@ DEFAULT_REFLECTANCE = {
 BIOPHYSICAL = ("C_m", "beta_m", "C_h_out", "C_h_in")
 DEFAULT_BIOPHYSICAL_STD = {"C_m": 0.004, "beta_m": 0.01, "C_h_out": 0.01, "C_h_in": 0.008}
 MAP_NAMES = tuple(DEFAULT_REFLECTANCE) + BIOPHYSICAL
+BIOPHYSICAL_LIMITS = (0.0, 1.0)
+"""Default ``[low, high]`` of a biophysical map: volume fractions."""
+
+FEATURE_KEYS = {
+    "map": "the biophysical map it changes (C_m, beta_m, C_h_out or C_h_in)",
+    "factor": "the map is multiplied by this at the centre of each disk (> 0)",
+    "diameter_mm": "diameter of each disk on the surface, mm (> 0)",
+    "edge_mm": "width of the disk's soft edge (logistic), mm (> 0; default diameter / 10)",
+    "count": "number of disks at random surface points (uniform by area), or",
+    "centers_uv": "explicit disk centres, a list of [u, v] texture coordinates in [0, 1]",
+    "name": "an optional label for the record",
+}
+"""Keys of one localized feature (``TruthSettings.features``), as docs/synth.md lists them."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,11 +60,21 @@ class TruthSettings:
     skin : (region, type)
         Row of Table 2 for the biophysical base values, e.g. ("forehead", "II").
     biophysical_std : dict
-        Standard deviation of each biophysical map (absolute fractions).
+        Standard deviation of each biophysical map (absolute fractions), for
+        maps that ``biophysical`` does not give.
     correlation_mm : float
         Correlation length of the random fields, mm.
     hemoglobin_swing : float
         Relative peak change of C_h_out and C_h_in over a dynamic sequence.
+    biophysical : dict
+        ``name -> (base, std, low, high)`` (volume fractions, ``0 <= low <=
+        base <= high <= 1``) for the biophysical maps that should not follow
+        the ``skin`` row; the others take the row's mean, ``biophysical_std``
+        and [0, 1] (:meth:`biophysical_maps`).
+    features : list of dict
+        Localized features applied after the random fields, in order: each
+        multiplies one biophysical map inside smooth-edged disks on the
+        surface (keys in :data:`FEATURE_KEYS`; :func:`feature_weight`).
     """
 
     reflectance: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_REFLECTANCE))
@@ -55,6 +82,8 @@ class TruthSettings:
     biophysical_std: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_BIOPHYSICAL_STD))
     correlation_mm: float = 8.0
     hemoglobin_swing: float = 0.3
+    biophysical: dict = dataclasses.field(default_factory=dict)
+    features: list = dataclasses.field(default_factory=list)
 
     def __post_init__(self):
         if tuple(self.skin) not in TABLE2:
@@ -72,15 +101,75 @@ class TruthSettings:
                              f"{sorted(self.biophysical_std)}")
         if any(std < 0 for std in self.biophysical_std.values()):
             raise ValueError(f"biophysical_std must be >= 0, got {self.biophysical_std}")
+        for name, value in self.biophysical.items():
+            if name not in BIOPHYSICAL:
+                raise ValueError(f"unknown biophysical map {name!r}; known: {list(BIOPHYSICAL)}")
+            if len(value) != 4 or not all(_is_number(x) for x in value):
+                raise ValueError(f"biophysical {name}: expected [base, std, low, high], got {list(value)}")
+            base, std, low, high = value
+            if not (0.0 <= low <= base <= high <= 1.0) or std < 0:
+                raise ValueError(f"biophysical {name}: need 0 <= low <= base <= high <= 1 and std >= 0, "
+                                 f"got [{base}, {std}, {low}, {high}]")
+        for index, feature in enumerate(self.features):
+            check_feature(feature, f"features[{index}]")
         if self.correlation_mm <= 0:
             raise ValueError("correlation_mm must be > 0")
+
+    def biophysical_maps(self):
+        """``name -> (base, std, low, high)`` of the four biophysical maps as they are drawn."""
+        row = TABLE2[tuple(self.skin)]
+        defaults = {name: (getattr(row, name), self.biophysical_std[name]) + BIOPHYSICAL_LIMITS
+                    for name in BIOPHYSICAL}
+        return {name: tuple(self.biophysical.get(name, defaults[name])) for name in BIOPHYSICAL}
+
+    def skin_parameters(self):
+        """The Table 2 row's :class:`~polarbssrdf.skin.SkinParameters` with the maps' bases:
+        the skin whose layer profiles synth blurs with (the row itself by default)."""
+        bases = {name: value[0] for name, value in self.biophysical_maps().items()}
+        return dataclasses.replace(TABLE2[tuple(self.skin)], **bases)
+
+
+def _is_number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
+
+
+def check_feature(feature, where="feature"):
+    """``ValueError`` naming ``where`` and the key if ``feature`` is not a valid feature dict."""
+    if not isinstance(feature, dict):
+        raise ValueError(f"{where}: a feature must be an object with keys {sorted(FEATURE_KEYS)}")
+    unknown = sorted(set(feature) - set(FEATURE_KEYS))
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {sorted(FEATURE_KEYS)}")
+    for key in ("map", "factor", "diameter_mm"):
+        if key not in feature:
+            raise ValueError(f"{where}: missing key {key!r}")
+    if feature["map"] not in BIOPHYSICAL:
+        raise ValueError(f"{where}.map: {feature['map']!r} is not one of {list(BIOPHYSICAL)}")
+    for key in ("factor", "diameter_mm", "edge_mm"):
+        if key in feature and not (_is_number(feature[key]) and feature[key] > 0):
+            raise ValueError(f"{where}.{key}: must be a number > 0, got {feature[key]!r}")
+    if ("count" in feature) == ("centers_uv" in feature):
+        raise ValueError(f"{where}: give exactly one of 'count' and 'centers_uv'")
+    if "count" in feature:
+        count = feature["count"]
+        if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+            raise ValueError(f"{where}.count: must be an integer >= 0, got {count!r}")
+    else:
+        centres = np.asarray(feature["centers_uv"], dtype=object)
+        ok = centres.ndim == 2 and centres.shape[1] == 2 and all(
+            _is_number(x) and 0.0 <= x <= 1.0 for x in centres.ravel())
+        if not ok:
+            raise ValueError(f"{where}.centers_uv: must be a list of [u, v] pairs in [0, 1], "
+                             f"got {feature['centers_uv']!r}")
 
 
 def load_settings(path):
     """Settings from a JSON file: any subset of the fields of :class:`TruthSettings`.
 
-    ``reflectance`` and ``biophysical_std`` may give only some maps; the
-    others keep their defaults. The keys are documented in ``docs/synth.md``.
+    ``reflectance``, ``biophysical_std`` and ``biophysical`` may give only
+    some maps; the others keep their defaults. A biophysical map given in both
+    ``biophysical`` and ``biophysical_std`` is refused (two standard
+    deviations). The keys are documented in ``docs/synth.md``.
     """
     from polarbssrdf.io.jsonfile import read_json_file
 
@@ -91,18 +180,95 @@ def load_settings(path):
     unknown = set(data) - {f.name for f in dataclasses.fields(TruthSettings)}
     if unknown:
         raise ValueError(f"{path}: unknown settings {sorted(unknown)}")
+    for key in ("reflectance", "biophysical_std", "biophysical"):
+        if key in data and not isinstance(data[key], dict):
+            raise ValueError(f"{path}: {key} must be an object of maps")
     if "reflectance" in data:
         data["reflectance"] = {**DEFAULT_REFLECTANCE,
                                **{k: tuple(v) for k, v in data["reflectance"].items()}}
-    if "biophysical_std" in data:
-        unknown = set(data["biophysical_std"]) - set(BIOPHYSICAL)
+    for key in ("biophysical_std", "biophysical"):
+        unknown = set(data.get(key, {})) - set(BIOPHYSICAL)
         if unknown:
-            raise ValueError(f"{path}: unknown biophysical maps {sorted(unknown)}; known: "
+            raise ValueError(f"{path}: unknown biophysical maps in {key} {sorted(unknown)}; known: "
                              f"{list(BIOPHYSICAL)}")
+    twice = sorted(set(data.get("biophysical_std", {})) & set(data.get("biophysical", {})))
+    if twice:
+        raise ValueError(f"{path}: {twice} in both biophysical and biophysical_std; give the "
+                         "standard deviation once, in biophysical's [base, std, low, high]")
+    if "biophysical_std" in data:
         data["biophysical_std"] = {**DEFAULT_BIOPHYSICAL_STD, **data["biophysical_std"]}
+    if "biophysical" in data:
+        data["biophysical"] = {k: tuple(v) if isinstance(v, list) else v
+                               for k, v in data["biophysical"].items()}
+    if "features" in data and not isinstance(data["features"], list):
+        raise ValueError(f"{path}: features must be a list of objects")
     if "skin" in data:
         data["skin"] = tuple(data["skin"])
-    return TruthSettings(**data)
+    try:
+        return TruthSettings(**data)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+
+
+def table2_offset_settings(skin, spreads=1.0, signs=None, spread="row", **fields):
+    """Truth settings of a Table 2 row whose biophysical bases sit off the row's means.
+
+    ``base = mean + sign * spreads * s`` per map, where ``s`` is, with
+    ``spread="row"`` (default), the row's own Table 2 "(std)"
+    (:data:`~polarbssrdf.skin.parameters.TABLE2_STD`: how much the map varies
+    over the measured region, the spread a prior centred on that row would
+    carry), or with ``spread="rows"`` the standard deviation of the eight
+    Table 2 means (:func:`~polarbssrdf.skin.parameters.table2_spread_across_rows`,
+    the spread of a population prior over skin types; 2-10x larger).
+
+    Parameters
+    ----------
+    skin : (region, type)
+        The Table 2 row.
+    spreads : float
+        How many spreads to move each base (>= 0).
+    signs : dict, optional
+        ``name -> +1 or -1`` per map; default +1 for all: a downward shift of
+        ``C_h_in`` or ``beta_m`` by one spread leaves most rows' bases within two
+        map standard deviations of 0, where the field would be clipped.
+    spread : {"row", "rows"}
+    **fields
+        Other :class:`TruthSettings` fields (``biophysical_std``, ``features``, ...).
+
+    A base closer than two map standard deviations to 0 or 1 (where more than about 2% of
+    the field would be clipped) is refused with a ``ValueError`` naming the map. The maps
+    keep ``biophysical_std`` (or the default) as their spatial spread.
+    """
+    skin = tuple(skin)
+    if skin not in TABLE2:
+        raise ValueError(f"skin must be one of {sorted(TABLE2)}, got {skin!r}")
+    if not (_is_number(spreads) and spreads >= 0):
+        raise ValueError(f"spreads must be a number >= 0, got {spreads!r}")
+    if spread == "row":
+        scale = TABLE2_STD[skin]
+    elif spread == "rows":
+        scale = table2_spread_across_rows()
+    else:
+        raise ValueError(f"spread must be 'row' or 'rows', got {spread!r}")
+    signs = {**DEFAULT_OFFSET_SIGNS, **(signs or {})}
+    unknown = sorted(set(signs) - set(BIOPHYSICAL))
+    if unknown or any(value not in (-1, 1) for value in signs.values()):
+        raise ValueError(f"signs must map {list(BIOPHYSICAL)} to +1 or -1, got {signs}")
+    std = {**DEFAULT_BIOPHYSICAL_STD, **fields.pop("biophysical_std", {})}
+    biophysical = {}
+    for name in BIOPHYSICAL:
+        base = getattr(TABLE2[skin], name) + signs[name] * spreads * scale[name]
+        if not 2.0 * std[name] <= base <= 1.0 - 2.0 * std[name]:
+            raise ValueError(f"{name}: the mean {getattr(TABLE2[skin], name)} moved by "
+                             f"{signs[name] * spreads:+g} x {scale[name]} is {base:.5f}, within two map "
+                             f"standard deviations ({std[name]}) of [0, 1]'s ends; use the other sign, "
+                             "fewer spreads or a smaller biophysical_std")
+        biophysical[name] = (float(base), float(std[name])) + BIOPHYSICAL_LIMITS
+    return TruthSettings(skin=skin, biophysical=biophysical, **fields)
+
+
+DEFAULT_OFFSET_SIGNS = {"C_m": 1, "beta_m": 1, "C_h_out": 1, "C_h_in": 1}
+"""Directions of :func:`table2_offset_settings`' shifts when none are given."""
 
 
 def smooth_field(shape, correlation_texels, rng):
@@ -112,7 +278,11 @@ def smooth_field(shape, correlation_texels, rng):
 
 
 def truth_maps(atlas, settings, rng):
-    """The static maps (T x T float32) of every parameter in :data:`MAP_NAMES`."""
+    """The static maps (T x T float32) of every parameter in :data:`MAP_NAMES`.
+
+    The random fields are drawn first, in a fixed order, and the features'
+    random centres after them, so settings without features give the same maps
+    as before features existed."""
     texel_mm = float(np.median(atlas.texel_size_mm[atlas.valid]))
     correlation = settings.correlation_mm / texel_mm
     shape = atlas.valid.shape
@@ -121,13 +291,65 @@ def truth_maps(atlas, settings, rng):
         field = np.clip(base + std * smooth_field(shape, correlation, rng), low, high)
         # texels off the surface keep the base value: valid, and never seen
         maps[name] = np.where(atlas.valid, field, base)
-    skin = TABLE2[tuple(settings.skin)]
+    limits = settings.biophysical_maps()
     for name in BIOPHYSICAL:
-        base = getattr(skin, name)
-        std = settings.biophysical_std[name]
-        field = np.clip(base + std * smooth_field(shape, correlation, rng), 0.0, 1.0)
+        base, std, low, high = limits[name]
+        field = np.clip(base + std * smooth_field(shape, correlation, rng), low, high)
         maps[name] = np.where(atlas.valid, field, base)
+    for feature in settings.features:
+        name = feature["map"]
+        weight = feature_weight(atlas, feature, rng)
+        _, _, low, high = limits[name]
+        changed = np.clip(maps[name] * (1.0 + (feature["factor"] - 1.0) * weight), low, high)
+        maps[name] = np.where(atlas.valid, changed, maps[name])
     return {name: value.astype(np.float32) for name, value in maps.items()}
+
+
+def feature_centres(atlas, feature, rng):
+    """(n, 3) surface points (mm) of a feature's disk centres.
+
+    ``centers_uv``: the surface point of the texel holding each (u, v) (the
+    nearest surface texel if that one is off the mesh); ``count``: texels drawn
+    from ``rng`` with probability proportional to their area, so the disks are
+    uniform over the surface."""
+    valid = atlas.valid
+    T = valid.shape[0]
+    positions = atlas.position[valid].astype(np.float64)
+    if "count" in feature:
+        area = np.prod(atlas.texel_size_mm[valid].astype(np.float64), axis=-1)
+        picks = rng.choice(positions.shape[0], size=feature["count"], p=area / area.sum())
+        return positions[picks]
+    rows, cols = np.nonzero(valid)
+    centres = []
+    for u, v in feature["centers_uv"]:
+        # Mitsuba uv: column j at u = (j + 0.5) / T, row i at v (polarbssrdf.geometry)
+        i, j = min(int(v * T), T - 1), min(int(u * T), T - 1)
+        nearest = int(np.argmin((rows - i) ** 2 + (cols - j) ** 2))
+        centres.append(positions[nearest])
+    return np.asarray(centres).reshape(-1, 3)
+
+
+def disk_weight(distance_mm, diameter_mm, edge_mm):
+    """Smooth-edged disk, 1 at the centre: ``L(r) / L(0)``, ``L(r) = 1 / (1 + exp((r - d/2) / e))``.
+
+    ``distance_mm`` from the centre, ``diameter_mm`` d (the weight is 1/2 at
+    r = d/2 relative to the centre's), ``edge_mm`` e (the 12%-88% rise takes 4 e)."""
+    radius = 0.5 * diameter_mm
+    logistic = lambda r: 0.5 * (1.0 - np.tanh(0.5 * (r - radius) / edge_mm))  # noqa: E731 (overflow-free)
+    return logistic(np.asarray(distance_mm, dtype=np.float64)) / logistic(0.0)
+
+
+def feature_weight(atlas, feature, rng):
+    """(T, T) weight in [0, 1] of one feature: the largest :func:`disk_weight` over its disks,
+    with distances between surface points in mm (straight lines, close to the surface's own
+    over a few cm). Overlapping disks do not compound."""
+    weight = np.zeros(atlas.valid.shape)
+    points = atlas.position.astype(np.float64)
+    edge = feature.get("edge_mm", 0.1 * feature["diameter_mm"])
+    for centre in feature_centres(atlas, feature, rng):
+        distance = np.linalg.norm(points - centre, axis=-1)
+        weight = np.maximum(weight, disk_weight(distance, feature["diameter_mm"], edge))
+    return np.where(atlas.valid, weight, 0.0)
 
 
 def frame_maps(static, frame, n_frames, settings, flush_region=None):
@@ -148,6 +370,8 @@ def frame_maps(static, frame, n_frames, settings, flush_region=None):
     weight = 1.0 if flush_region is None else flush_region
     factor = 1.0 + settings.hemoglobin_swing * phase * weight
     maps = dict(static)
+    limits = settings.biophysical_maps()
     for name in ("C_h_out", "C_h_in"):
-        maps[name] = np.clip(static[name] * factor, 0.0, 1.0).astype(np.float32)
+        _, _, low, high = limits[name]
+        maps[name] = np.clip(static[name] * factor, low, high).astype(np.float32)
     return maps

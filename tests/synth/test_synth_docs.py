@@ -31,8 +31,11 @@ def test_the_example_settings_file_runs(tmp_path):
     settings = load_settings(params)
     assert settings.skin == ("cheek", "IV") and settings.reflectance["alpha_s"][0] == 0.35
     assert settings.biophysical_std["C_m"] == 0.006 and settings.biophysical_std["C_h_in"] == 0.008
+    assert settings.biophysical_maps()["C_h_in"] == (0.035, 0.008, 0.0, 1.0)
+    assert settings.features[0]["map"] == "C_m" and settings.features[0]["count"] == 25
     assert main(["synth", str(tmp_path / "cap"), "--object", "sphere", "--views", "1",
                  "--resolution", "32", "--texture", "32", "--spp", "1", "--quiet",
                  "--params", str(params)]) == 0
     recorded = load_capture(tmp_path / "cap").manifest.metadata["truth_settings"]
     assert recorded["skin"] == ["cheek", "IV"] and recorded["correlation_mm"] == 12.0
+    assert recorded["features"][0]["name"] == "freckles"

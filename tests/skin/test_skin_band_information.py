@@ -1,0 +1,269 @@
+"""What the bands can tell: Cramér-Rao bounds of the chromophores, checked against an
+independent per-texel fit, and the band-design search."""
+
+import itertools
+import json
+
+import mitsuba as mi
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from polarbssrdf.cli import main
+from polarbssrdf.render.subsurface import subsurface_exit_fraction
+from polarbssrdf.skin import band_information as info
+from polarbssrdf.skin.inversion import _Model
+from polarbssrdf.skin.model import band_chromophore_basis, reflectance_from_basis
+from polarbssrdf.skin.parameters import TABLE2, SkinParameters
+from polarbssrdf.spectral import bandpass_bands, bands_to_json, comb_pair_bands, shipped_default_bands
+
+ROW = ("forehead", "IV")
+
+
+@pytest.fixture(scope="module")
+def bands():
+    return shipped_default_bands()
+
+
+def test_the_jacobian_is_the_inversions_analytic_one(bands):
+    """Central differences of band_reflectance vs the chain rule through the inversion's
+    Hermite tables (another code path: exact derivatives of an interpolant whose slopes are
+    good to about 2e-5), and a step in the plateau (half of it changes J by < 1e-5)."""
+    basis = band_chromophore_basis(bands)
+    for row in [("forehead", "I"), ROW, ("cheek", "III")]:
+        skin = TABLE2[row]
+        theta = np.array([[skin.C_m, skin.beta_m, skin.C_h_out, skin.C_h_in]])
+        albedo, jacobian = info.albedo_jacobian(*theta[0], bands, skin.eta)
+        value, reference = _Model(basis, 0.75, 0.25, skin.eta).value_and_jacobian(theta)
+        np.testing.assert_allclose(albedo, value[0], rtol=1e-8)
+        np.testing.assert_allclose(jacobian, reference[0], rtol=5e-5, atol=1e-6 * np.abs(reference).max())
+        _, finer = info.albedo_jacobian(*theta[0], bands, skin.eta, step=info.JACOBIAN_STEP / 2)
+        assert np.abs(finer - jacobian).max() < 1e-5 * np.abs(jacobian).max()
+
+
+def test_relative_noise_ignores_the_exit_fraction_and_absolute_noise_scales_with_it(bands):
+    rows = [ROW, ("cheek", "I")]
+    relative = [info.band_bounds(bands, info.white_noise(0.01), rows, exit_fraction=f).std
+                for f in (None, subsurface_exit_fraction)]
+    np.testing.assert_allclose(relative[0], relative[1], rtol=1e-9)
+    flux, lobe = (info.band_bounds(bands, info.white_noise(0.005, relative=False), rows, exit_fraction=f).std
+                  for f in (None, subsurface_exit_fraction))
+    c = subsurface_exit_fraction([TABLE2[r].eta for r in rows])
+    # rho = R / c: the same absolute error on rho is c times larger on R, and so is the bound
+    np.testing.assert_allclose(lobe, flux * c[:, None], rtol=1e-9)
+
+
+def test_a_diagonal_covariance_is_white_noise_and_a_common_error_costs(bands):
+    white = info.band_bounds(bands, info.white_noise(0.01))
+    diagonal = info.band_bounds(bands, info.NoiseModel("covariance", matrix=1e-4 * np.eye(6)))
+    np.testing.assert_allclose(diagonal.std, white.std, rtol=1e-9)
+    n = len(bands)
+    common = info.NoiseModel("covariance", matrix=1e-4 * np.eye(n) + 0.02 ** 2 * np.ones((n, n)))
+    assert np.all(info.band_bounds(bands, common).std > white.std)
+
+
+def test_no_band_lowers_the_bound_by_being_removed(bands):
+    bounds = info.band_bounds(bands, info.white_noise(0.01))
+    pins = info.band_pins(bounds)
+    assert pins.shape == (len(bands), 8, 4)
+    assert np.all(pins >= 1.0 - 1e-9)  # removing information never tightens the bound
+    # with four bands, removing any one leaves three for four unknowns
+    four = info.band_bounds(bands[:4], info.white_noise(0.01), [ROW])
+    assert np.all(np.isinf(info.band_pins(four)))
+
+
+def test_too_few_bands_are_reported_not_an_error(bands):
+    bounds = info.band_bounds(bands[:3], info.white_noise(0.01))
+    assert not bounds.identifiable.any() and np.all(np.isinf(bounds.condition))
+    data = info.report_json(bounds)
+    assert data["rows"][0]["std"]["C_m"] is None and data["rows"][0]["identifiable"]["beta_m"] is False
+    json.dumps(data, allow_nan=False)  # infinite bounds are null, so the JSON is strict
+    assert "inf" in info.format_report(bounds)
+    # a prior makes the Bayesian bound finite, and never above the prior's spread
+    prior = info.band_bounds(bands[:3], info.white_noise(0.01), prior="rows")
+    spread = info.prior_spreads("rows", prior.rows)
+    assert prior.identifiable.all() and np.all(prior.std <= spread * (1 + 1e-9))
+
+
+def test_an_unseen_direction_makes_only_its_chromophores_infinite():
+    block = np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.5], [0.0, 0.5, 2.0]])
+    information = np.zeros((4, 4))
+    information[:3, :3] = block
+    covariance, std, condition = info.bound_from_information(information, np.ones(4))
+    np.testing.assert_allclose(covariance[:3, :3], np.linalg.inv(block), rtol=1e-12)
+    assert np.isinf(std[3]) and np.isfinite(std[:3]).all() and np.isinf(condition)
+
+
+def fit_draws(observed, bands, skin, whiten):
+    """Per-draw maximum-likelihood fit without prior: scipy least_squares on the skin model."""
+    basis = band_chromophore_basis(bands)
+    start = np.array([skin.C_m, skin.beta_m, skin.C_h_out, skin.C_h_in])
+    out = []
+    for value in observed:
+        def residual(p):
+            model = reflectance_from_basis(basis, *p, eta=skin.eta, workers=1)
+            return whiten @ ((model - value) / value)
+        fit = least_squares(residual, start, method="lm", x_scale=np.full(4, 0.01), diff_step=1e-6,
+                            xtol=1e-10, ftol=1e-10)
+        out.append(fit.x)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("kind", ["white", "correlated"])
+def test_the_bound_is_the_spread_of_a_per_texel_fit(bands, kind):
+    """Noisy draws of one Table 2 row's albedo, each fitted per texel (no prior, no smoothness):
+    the spread of every chromophore is the Cramér-Rao bound within 30% (120 draws: the
+    sampling error of a standard deviation is 6.5%). The noise is small enough (0.1%) for the
+    fit to be in its linear regime; at the fit's 1% the bound of beta_m exceeds its range."""
+    skin = TABLE2[ROW]
+    n = len(bands)
+    if kind == "white":
+        matrix = 0.001 ** 2 * np.eye(n)
+    else:  # a common gain error beside per-band noise, as the static albedo's (issue 20)
+        matrix = 0.0005 ** 2 * np.eye(n) + 0.0009 ** 2 * np.ones((n, n))
+    noise = info.NoiseModel("covariance", matrix=matrix)
+    bounds = info.band_bounds(bands, noise, [ROW])
+    rng = np.random.default_rng(7)
+    clean = bounds.albedo[0]
+    observed = clean * (1.0 + rng.multivariate_normal(np.zeros(n), matrix, size=120))
+    whiten = np.linalg.inv(np.linalg.cholesky(matrix))
+    estimates = fit_draws(observed, bands, skin, whiten)
+    truth = np.array([skin.C_m, skin.beta_m, skin.C_h_out, skin.C_h_in])
+    spread = estimates.std(axis=0)
+    np.testing.assert_allclose(spread / bounds.std[0], 1.0, atol=0.3)
+    assert np.all(np.abs(estimates.mean(axis=0) - truth) < 0.35 * bounds.std[0])  # unbiased (3.8 sigma)
+
+
+def test_the_bound_predicts_the_error_on_synthetic_maps(bands):
+    """Synth's truth maps (bases off Table 2, spatial variation), its albedo, 0.05% relative noise,
+    a per-texel fit: errors over the per-texel bound have unit spread within 30%."""
+    from polarbssrdf.geometry import texel_atlas, to_mitsuba
+    from polarbssrdf.synth.synthesize import object_mesh, subsurface_albedo
+    from polarbssrdf.synth.truth import table2_offset_settings, truth_maps
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    atlas = texel_atlas(to_mitsuba(object_mesh("sphere")), 32)
+    maps = truth_maps(atlas, table2_offset_settings(("cheek", "II"), 1.5), np.random.default_rng(3))
+    albedo = np.moveaxis(subsurface_albedo(maps, bands), 0, -1)[atlas.valid].astype(np.float64)
+    texels = np.random.default_rng(4).choice(albedo.shape[0], 120, replace=False)
+    truth = np.stack([maps[n][atlas.valid][texels] for n in info.PARAMETERS], -1).astype(np.float64)
+    eta = maps["eta"][atlas.valid][texels].astype(np.float64)
+    sigma = 0.0005
+    _, jacobian = info.albedo_jacobian(*truth.T, bands, eta, exit_fraction=subsurface_exit_fraction)
+    noise = info.white_noise(sigma)
+    information = info.fisher_information(jacobian, noise.covariance(albedo[texels]))
+    _, std, _ = info.bound_from_information(information, info.table2_scale())
+    observed = albedo[texels] * (1.0 + sigma * np.random.default_rng(5).standard_normal(albedo[texels].shape))
+    z = []
+    for value, skin_theta, e, bound in zip(observed, truth, eta, std):
+        skin = SkinParameters(*skin_theta, eta=float(e))
+        # the fit sees R_bar = c(eta) rho (the stage's definition); relative noise is the same on both
+        estimate = fit_draws((value * subsurface_exit_fraction(e))[None], bands, skin, np.eye(len(bands)) / sigma)
+        z.append((estimate[0] - skin_theta) / bound)
+    np.testing.assert_allclose(np.std(z, axis=0), 1.0, atol=0.3)
+
+
+def test_design_finds_the_exhaustive_optimum_and_greedy_is_no_better():
+    candidates = bandpass_bands(np.arange(420, 700, 40), 10)  # 7 candidates
+    noise = info.white_noise(0.01)
+    exhaustive = info.design_bands(candidates, 5, noise, search="exhaustive")
+    greedy = info.design_bands(candidates, 5, noise, search="greedy")
+    assert greedy.value >= exhaustive.value * (1 - 1e-12)
+    # the exhaustive optimum is the best of every subset, each scored independently
+    scores = {subset: info.band_bounds([candidates[i] for i in subset], noise).criterion("mean")
+              for subset in itertools.combinations(range(7), 5)}
+    best = min(scores, key=scores.get)
+    assert sorted(exhaustive.chosen) == list(best)
+    assert exhaustive.value == pytest.approx(scores[best], rel=1e-9)
+    assert greedy.value == pytest.approx(scores[tuple(sorted(greedy.chosen))], rel=1e-9)
+    worst = info.design_bands(candidates, 4, noise, criterion="worst", search="exhaustive")
+    assert worst.value == pytest.approx(info.band_bounds(worst.bands, noise).criterion("worst"), rel=1e-9)
+
+
+def test_design_refuses_what_it_cannot_do():
+    candidates = bandpass_bands([450, 500, 550, 600, 650], 10)
+    with pytest.raises(ValueError, match="white noise"):
+        info.design_bands(candidates, 4, info.NoiseModel("covariance", matrix=np.eye(5)))
+    with pytest.raises(ValueError, match="k must be"):
+        info.design_bands(candidates, 6, info.white_noise(0.01))
+    with pytest.raises(ValueError, match="criterion must be"):
+        info.design_bands(candidates, 4, info.white_noise(0.01), criterion="median")
+
+
+def test_the_comb_pair_search_scores_the_default_pair_as_the_default_bands(bands):
+    noise = info.white_noise(0.01)
+    period, phase, value, grid = info.design_comb_pair([60.0, 70.0], [430.0, 440.0], noise)
+    scores = {(p, q): v for p, q, v in grid}
+    assert scores[(70.0, 440.0)] == pytest.approx(info.band_bounds(bands, noise).criterion("mean"), rel=1e-6)
+    assert value == min(scores.values()) and scores[(period, phase)] == value
+
+
+def test_bands_command_table_and_json(tmp_path, capsys, bands):
+    out = tmp_path / "report.json"
+    assert main(["skin", "bands", "--noise", "0.02", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "forehead IV" in text and "pins" in text and "C_h_in" in text
+    data = json.loads(out.read_text())
+    assert data["schema"] == "polarbssrdf.band_report" and len(data["rows"]) == 8
+    expected = info.band_bounds(bands, info.white_noise(0.02), exit_fraction=subsurface_exit_fraction)
+    assert data["rows"][3]["std"]["C_m"] == pytest.approx(expected.std[3, 0], rel=1e-9)
+    assert [p["band"] for p in data["pins"]] == [b.name for b in bands]
+    # the same through a band file, a covariance file with named bands, and the comb pair
+    band_file = tmp_path / "bands.json"
+    band_file.write_text(bands_to_json(bands))
+    names = [b.name for b in bands][::-1]
+    covariance = tmp_path / "cov.json"
+    covariance.write_text(json.dumps({"bands": names, "covariance": (4e-4 * np.eye(6)).tolist()}))
+    assert main(["skin", "bands", "--bands", str(band_file), "--covariance", str(covariance),
+                 "--out", str(tmp_path / "cov_report.json")]) == 0
+    again = json.loads((tmp_path / "cov_report.json").read_text())
+    assert again["rows"][3]["std"]["C_m"] == pytest.approx(expected.std[3, 0], rel=1e-9)
+    assert main(["skin", "bands", "--comb", "70", "440", "--out", str(tmp_path / "comb.json")]) == 0
+    comb = json.loads((tmp_path / "comb.json").read_text())
+    assert comb["rows"][0]["std"]["C_m"] == pytest.approx(data["rows"][0]["std"]["C_m"] / 2, rel=1e-3)
+    assert main(["skin", "bands", "--centres", "420,470,590,680", "--widths", "10"]) == 0
+
+
+def test_design_command_writes_a_band_file_the_report_reads(tmp_path, capsys):
+    best = tmp_path / "best.json"
+    assert main(["skin", "design-bands", "-k", "4", "--candidates", "420:680:40", "--write-bands", str(best),
+                 "--out", str(tmp_path / "design.json")]) == 0
+    design = json.loads((tmp_path / "design.json").read_text())
+    assert len(design["design"]["chosen"]) == 4
+    assert design["chosen"]["criteria"]["mean"] < design["default_bands"]["criteria"]["mean"]
+    capsys.readouterr()
+    assert main(["skin", "bands", "--bands", str(best), "--out", str(tmp_path / "r.json")]) == 0
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["criteria"]["mean"] == pytest.approx(design["chosen"]["criteria"]["mean"], rel=1e-9)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["skin", "bands", "--noise", "0"], "noise level must be a number > 0"),
+    (["skin", "bands", "--noise-absolute", "-0.01"], "noise level must be a number > 0"),
+    (["skin", "bands", "--bands", "missing.json"], "band file not found"),
+    (["skin", "bands", "--centres", "380,450,550,650"], "outside the wavelength grid 400-700 nm"),
+    (["skin", "bands", "--centres", "450,550,650", "--widths", "10,20"], "one width or one per centre"),
+    (["skin", "bands", "--thickness", "0"], "--thickness must be > 0"),
+    (["skin", "design-bands", "--candidates", "400:700:0"], "bad wavelengths"),
+    (["skin", "design-bands", "-k", "40"], "k must be an integer"),
+])
+def test_bad_input_is_one_line_naming_it(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("content, message", [
+    ({"covariance": [[1e-4, 0], [1e-5, 1e-4]]}, "not symmetric"),
+    ({"covariance": [[1e-4, 2e-4], [2e-4, 1e-4]]}, "not positive definite"),
+    ({"covariance": (1e-4 * np.eye(5)).tolist()}, "a 5 x 5 matrix for 6 bands"),
+    ({"bands": ["BA", "BB", "GA", "GB", "RA", "XX"], "covariance": (1e-4 * np.eye(6)).tolist()},
+     "the band set has"),
+    ({"matrix": [[1]]}, "key 'covariance'"),
+])
+def test_bad_covariance_files_are_named(tmp_path, capsys, content, message):
+    path = tmp_path / "cov.json"
+    path.write_text(json.dumps(content))
+    assert main(["skin", "bands", "--covariance", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "cov.json" in err
