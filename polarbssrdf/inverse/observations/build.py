@@ -74,7 +74,7 @@ from polarbssrdf.inverse.observations.store import (
     create_field_arrays,
     field_shape,
 )
-from polarbssrdf.io.capture import MANIFEST_NAME, Capture, load_capture
+from polarbssrdf.io.capture import MANIFEST_NAME, Capture, check_image_channels, load_capture
 from polarbssrdf.io.exr import read_exr
 from polarbssrdf.variants import ensure_jit_variant
 
@@ -273,23 +273,20 @@ def analyser_images(capture, record) -> list[np.ndarray]:
 
     Radiance for both kinds: raw mosaics are calibrated (``radiance_per_dn``,
     ``black_level_dn``; saturated pixels NaN) and then demosaicked; a raw
-    record without calibration raises :class:`ObservationError`. Read without
-    the capture's finiteness check, so that NaN pixels of real captures drop
-    texel-views instead of the whole image.
+    record without calibration raises :class:`ObservationError`. The pixels are
+    checked as :func:`~polarbssrdf.io.capture.load_capture` checks them, with its
+    messages (:func:`~polarbssrdf.io.capture.check_image_channels`), except that
+    NaN pixels of real captures pass: they drop texel-views, not the whole image.
     """
 
     manifest = capture.manifest
     camera = manifest.camera(record.camera)
     path = capture.directory / record.path
     channels, _ = read_exr(path)
-    expected = manifest.expected_channels(record)
-    missing = [name for name in expected if name not in channels]
-    if missing:
-        raise ObservationError(f"'{path}': missing channels {missing} of a {record.kind} image")
-    for name in expected:
-        if channels[name].shape != (camera.height, camera.width):
-            raise ObservationError(f"'{path}': channel '{name}' is {channels[name].shape[::-1]} "
-                                   f"(width x height), camera {camera.name} is {camera.image_size}")
+    # the loader's checks (channel set, size, no infinity, no negative radiance) on the
+    # pixels read here, so a run fits only what load_capture(check_images=True) accepts
+    check_image_channels(channels, manifest.expected_channels(record), camera.image_size,
+                         record.kind, f"'{path}'", allow_nan=True)
     if record.kind == "raw" and not record.calibrated:
         raise ObservationError(f"'{path}': raw image without a radiometric calibration: the "
                                "capture lacks radiance_per_dn (and black_level_dn) for it in "
