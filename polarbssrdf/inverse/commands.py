@@ -87,8 +87,8 @@ def register(subparsers) -> None:
                           help="continue the run in OUTDIR from its last checkpoint; needs the "
                                "same capture and settings (differences are named)")
     existing.add_argument("--overwrite", action="store_true",
-                          help="start over in OUTDIR, removing the earlier run's outputs (the "
-                               "observation cache is reused if its inputs match)")
+                          help="start over in OUTDIR, removing the earlier run's outputs and "
+                               "its observation cache")
     parser.add_argument("--variant", default=DEFAULT_VARIANT,
                         help="Mitsuba variant, a JIT autodiff polarized one "
                              "(default: %(default)s)")

@@ -76,6 +76,7 @@ from polarbssrdf.inverse.observations.store import (
 )
 from polarbssrdf.io.capture import MANIFEST_NAME, Capture, check_image_channels, load_capture
 from polarbssrdf.io.exr import read_exr
+from polarbssrdf.io.identity import DIGEST_NAME, file_digest
 from polarbssrdf.variants import ensure_jit_variant
 
 __all__ = [
@@ -342,19 +343,16 @@ def _frame_records(capture, frame_index: int, exclude_cameras) -> list:
     return records
 
 
-def _file_stamp(path: Path) -> list:
-    stat = path.stat()
-    return [stat.st_size, stat.st_mtime_ns]
-
-
 def observation_fingerprint(capture, frame_index, texture_size, *, exclude_cameras=(),
                             block_size=32, min_cosine=0.1) -> tuple[str, dict]:
     """``(sha256 hex, inputs)`` of everything a store depends on.
 
-    The inputs: the content hash of ``capture.json``, size and modification
-    time of the mesh and of every image of the frame, the texture size,
-    frame, excluded cameras, thresholds, block size and the store format
-    version. Any change gives another fingerprint, hence a rebuild.
+    The inputs: the content hash of ``capture.json``, of the mesh and of every
+    image of the frame (:func:`polarbssrdf.io.identity.file_digest`: the bytes,
+    not the size and modification time, which ``cp -p`` or a re-export of an
+    uncompressed EXR keep), the texture size, frame, excluded cameras,
+    thresholds, block size and the store format version. Any change gives
+    another fingerprint, hence a rebuild; the store records the inputs.
     """
 
     capture = _as_capture(capture)
@@ -363,9 +361,10 @@ def observation_fingerprint(capture, frame_index, texture_size, *, exclude_camer
     inputs = {
         "format_version": FORMAT_VERSION,
         "capture_json_sha256": hashlib.sha256(manifest_bytes).hexdigest(),
+        "digest": DIGEST_NAME,
         "mesh": (None if capture.mesh_path is None or not capture.mesh_path.is_file()
-                 else [capture.manifest.mesh, *_file_stamp(capture.mesh_path)]),
-        "images": [[record.path, *_file_stamp(capture.directory / record.path)]
+                 else [capture.manifest.mesh, file_digest(capture.mesh_path)]),
+        "images": [[record.path, file_digest(capture.directory / record.path)]
                    for record in frame.images],
         "texture_size": int(texture_size),
         "frame": int(frame_index),

@@ -36,6 +36,7 @@ from polarbssrdf.inverse.polarimetric.config import merged_config, parse_dynamic
 from polarbssrdf.inverse.polarimetric.fit import initial_parameters, run_polarimetric_fit
 from polarbssrdf.inverse.polarimetric.optimize import MapParameters
 from polarbssrdf.inverse.results.directory import (
+    OBSERVATIONS_DIR,
     RESULT_FILE,
     read_stage_maps,
     register_map,
@@ -96,7 +97,7 @@ def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(),
     if frame not in [f.index for f in capture.manifest.frames]:
         raise ValueError(f"capture {capture_dir} has no frame {frame}")
     store = load_or_build_observations(
-        capture, frame, texture_size, outdir / "observations" / f"f{frame:04d}.zarr",
+        capture, frame, texture_size, outdir / OBSERVATIONS_DIR / f"f{frame:04d}.zarr",
         exclude_cameras=tuple(holdout), progress=progress)
     missing = [f"rho_sss.{band}" for band in store.bands if f"rho_sss.{band}" not in static]
     if missing:

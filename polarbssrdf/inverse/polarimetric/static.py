@@ -21,7 +21,11 @@ import mitsuba as mi
 from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.inverse.observations.build import load_or_build_observations
 from polarbssrdf.inverse.polarimetric.fit import run_polarimetric_fit
-from polarbssrdf.inverse.results.directory import write_metrics, write_stage_maps
+from polarbssrdf.inverse.results.directory import (
+    OBSERVATIONS_DIR,
+    write_metrics,
+    write_stage_maps,
+)
 from polarbssrdf.inverse.results.previews import write_map_previews
 
 STAGE = "static"
@@ -40,7 +44,7 @@ def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=
     outdir = Path(outdir)
     start = time.perf_counter()
     store = load_or_build_observations(
-        capture, frame, texture_size, outdir / "observations" / f"f{frame:04d}.zarr",
+        capture, frame, texture_size, outdir / OBSERVATIONS_DIR / f"f{frame:04d}.zarr",
         exclude_cameras=tuple(holdout), progress=progress)
     atlas = texel_atlas(to_mitsuba(capture.load_mesh()), texture_size)
     stage_dir = outdir / STAGE

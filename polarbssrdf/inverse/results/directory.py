@@ -210,10 +210,12 @@ def _settings_differences(manifest, capture, texture_size, settings):
     return differences
 
 
-RUN_ENTRIES = (RESULT_FILE, *STAGES, METRICS_FILE, TIMINGS_FILE,
-               REPORT_FILE)
-"""What a run writes in OUTDIR; ``--overwrite`` removes only these (the observation cache stays:
-its fingerprint decides whether it is reused)."""
+OBSERVATIONS_DIR = "observations"
+"""``OUTDIR/observations/f####.zarr``: the observation cache of each frame."""
+
+RUN_ENTRIES = (RESULT_FILE, *STAGES, METRICS_FILE, TIMINGS_FILE, REPORT_FILE, OBSERVATIONS_DIR)
+"""What a run writes in OUTDIR; ``--overwrite`` removes only these, the observation cache
+too: starting over must not depend on the cache's fingerprint being right."""
 
 
 def _remove_run_files(outdir):
