@@ -180,3 +180,114 @@ def test_overwrite_rebuilds_the_observation_cache(sphere_capture_dir, config_fil
     texels_again, samples_again = _view_samples(ObservationStore.open(store), "cam01")
     np.testing.assert_array_equal(texels_again, texels)
     np.testing.assert_array_equal(samples_again, samples)
+
+
+# --------------------------------------------------------------------------- item 4
+@pytest.fixture(scope="module")
+def fitted(sphere_capture_dir, tmp_path_factory):
+    """A one-epoch static result of the analyser sphere (T = 32, its truth's size)."""
+    root = tmp_path_factory.mktemp("fitted")
+    config = root / "small.json"
+    config.write_text(json.dumps(SMALL))
+    status, _, stderr = _reconstruct(sphere_capture_dir, root / "result", config)
+    assert status == 0, stderr
+    return root / "result"
+
+
+def test_result_json_records_the_captures_identity(fitted, sphere_capture_dir):
+    import hashlib
+
+    identity = json.loads((fitted / "result.json").read_text())["capture_identity"]
+    images = sorted((sphere_capture_dir / "images" / "f0000").glob("*.exr"))
+    assert identity["frame"] == 0 and identity["hash"] == "blake2b-128"
+    assert identity["images"] == {
+        str(path.relative_to(sphere_capture_dir)):
+            hashlib.blake2b(path.read_bytes(), digest_size=16).hexdigest() for path in images}
+    mesh = sphere_capture_dir / json.loads((sphere_capture_dir / "capture.json").read_text())["mesh"]
+    assert identity["mesh"] == hashlib.blake2b(mesh.read_bytes(), digest_size=16).hexdigest()
+
+
+def test_evaluate_refuses_another_captures_truth_unless_forced(fitted, sphere_capture_dir,
+                                                               sphere_raw_capture_dir):
+    """The raw sphere has truth of the same size: it scored 'plausibly' with exit 0."""
+    status, stdout, stderr = run_cli("evaluate", fitted, "--truth", sphere_raw_capture_dir)
+    assert status == EXIT_USER_ERROR and stdout == ""
+    assert stderr.count("\n") == 1
+    assert f"--truth '{sphere_raw_capture_dir}' is not the capture" in stderr
+    assert f"'{sphere_capture_dir.resolve()}'" in stderr  # the result's own capture
+    assert "capture.json differs" in stderr and "--force" in stderr
+
+    status, stdout, stderr = run_cli("evaluate", fitted, "--truth", sphere_raw_capture_dir,
+                                     "--force")
+    assert status == 0, stderr
+    assert json.loads(stdout)["maps"]["eta"]["mae"] >= 0
+    assert stderr.startswith("polarbssrdf evaluate: warning: ") and stderr.count("\n") == 1
+
+    status, stdout, stderr = run_cli("evaluate", fitted)  # the recorded capture: its own
+    assert status == 0 and stderr == "", stderr
+
+
+def test_a_capture_with_other_image_contents_is_not_the_results(fitted, sphere_capture_dir,
+                                                                tmp_path):
+    """Same capture.json, one image changed: named; a copy without its truth is the same
+    capture (the identity is what was measured)."""
+    from polarbssrdf.io import load_capture
+    from polarbssrdf.io.identity import capture_identity
+
+    changed = _copy(sphere_capture_dir, tmp_path / "changed")
+    _rewrite(_image(changed, "cam02"), lambda c: {n: 0.9 * v for n, v in c.items()})
+    status, _, stderr = run_cli("evaluate", fitted, "--truth", changed)
+    assert status == EXIT_USER_ERROR
+    assert "1 of 4 images of frame 0 have other contents (e.g. images/f0000/cam02" in stderr
+    assert "capture.json differs" not in stderr
+
+    moved = _copy(sphere_capture_dir, tmp_path / "moved")  # another path, same capture
+    without_truth = _copy(sphere_capture_dir, tmp_path / "real")
+    manifest = json.loads((without_truth / "capture.json").read_text())
+    manifest.update(synthetic=False, truth=None)
+    (without_truth / "capture.json").write_text(json.dumps(manifest, indent=4))
+    shutil.rmtree(without_truth / "truth")
+    original = capture_identity(load_capture(sphere_capture_dir, check_images=False), 0)
+    for copy in (moved, without_truth):
+        assert capture_identity(load_capture(copy, check_images=False), 0) == original
+
+
+def test_report_refuses_another_capture_unless_forced(fitted, sphere_raw_capture_dir, tmp_path,
+                                                     monkeypatch):
+    from polarbssrdf.report import page
+
+    written = []
+
+    def fake_report(result_dir, out, **keywords):  # the check is the point, not the page
+        written.append(keywords["capture"])
+        out.write_text("<html></html>")
+        return out
+
+    monkeypatch.setattr(page, "write_report", fake_report)
+    out = tmp_path / "report.html"
+    status, _, stderr = run_cli("report", fitted, "--capture", sphere_raw_capture_dir,
+                                "--out", out, "--quiet")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
+    assert f"--capture '{sphere_raw_capture_dir}' is not the capture" in stderr
+    assert not written and not out.exists()
+    status, _, stderr = run_cli("report", fitted, "--capture", sphere_raw_capture_dir,
+                                "--out", out, "--quiet", "--force")
+    assert status == 0 and written == [sphere_raw_capture_dir], stderr
+    assert "warning" in stderr
+
+
+def test_resume_and_later_stages_refuse_a_capture_whose_contents_changed(sphere_capture_dir,
+                                                                         config_file, tmp_path):
+    capture = _copy(sphere_capture_dir, tmp_path / "capture")
+    outdir = tmp_path / "out"
+    status, _, stderr = _reconstruct(capture, outdir, config_file)
+    assert status == 0, stderr
+    _rewrite(_image(capture, "cam00"), lambda c: {n: 0.9 * v for n, v in c.items()})
+    before = (outdir / "result.json").read_text()
+    status, _, stderr = _reconstruct(capture, outdir, config_file, "--resume")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
+    assert "capture contents: 1 of 4 images of frame 0 have other contents" in stderr
+    status, _, stderr = run_cli("reconstruct", capture, outdir, "--stages", "bio", "--quiet")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
+    assert "is not the capture the result" in stderr and "images/f0000/cam00" in stderr
+    assert (outdir / "result.json").read_text() == before
