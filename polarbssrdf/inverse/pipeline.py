@@ -37,6 +37,7 @@ from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
 from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
 from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
 from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage
+from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
 from polarbssrdf.inverse.polarimetric.static import run_static_stage
 from polarbssrdf.inverse.results.directory import (
     RESULT_FILE,
@@ -219,6 +220,29 @@ def _texel_views(path: Path) -> int | None:
     return int(value) if isinstance(value, (int, float)) else None
 
 
+def say_confidence(stage, summaries, progress=True) -> None:
+    """Say on stderr what share of the surface ``stage`` measured (``{frame: summary}`` of
+    :func:`~polarbssrdf.inverse.polarimetric.fit.confidence_summary`): one line with the
+    progress display, and always a warning per frame below
+    :data:`~polarbssrdf.inverse.polarimetric.fit.LOW_CONFIDENT_FRACTION`."""
+    if not summaries:
+        return
+    fractions = [100 * s["confident_fraction"] for s in summaries.values()]
+    if progress:
+        share = (f"{fractions[0]:.1f}%" if len(fractions) == 1 else
+                 f"{min(fractions):.1f}-{max(fractions):.1f}% (over {len(fractions)} frames)")
+        print(f"polarbssrdf reconstruct: {stage}: {share} of the surface is confident "
+              "(metrics.json: confidence)", file=sys.stderr, flush=True)
+    for frame, summary in sorted(summaries.items(), key=lambda item: int(item[0])):
+        if summary["confident_fraction"] < LOW_CONFIDENT_FRACTION:
+            print(f"polarbssrdf reconstruct: warning: {stage}, frame {frame}: only "
+                  f"{100 * summary['confident_fraction']:.1f}% of the surface "
+                  f"({summary['confident_texels']:,} of {summary['surface_texels']:,} texels) "
+                  f"is confident (below {100 * LOW_CONFIDENT_FRACTION:.0f}%): the rest of its "
+                  "maps is filled in from neighbours, not measured; cameras that cover more "
+                  "of the object raise it", file=sys.stderr, flush=True)
+
+
 def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, texture=None,
                 frame=0, iterations=None, workers=None, scheduler=None, resume=False,
                 overwrite=False, progress=True, variant=DEFAULT_VARIANT) -> Reconstruction:
@@ -310,6 +334,7 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
         if stage == "static":
             result = run_static_stage(capture, outdir, config, texture, frame=frame,
                                       holdout=tuple(holdout), progress=progress, label=label)
+            say_confidence(stage, {frame: result.confidence}, progress)
             views = _texel_views(result.path)
             epochs = len(result.history)
             final = result.history[-1].get("total") if result.history else None
@@ -323,6 +348,7 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                                        resume=resume or continuing, progress=progress,
                                        variant=variant, label=label)
             failed.update(report["failed"])
+            say_confidence(stage, report["confidence"], progress)
             lines.append(f"  dynamic: {len(report['done'])} frame(s) fitted"
                          + (f", {len(report['skipped'])} already done" if report["skipped"] else "")
                          + (f", {len(report['failed'])} failed" if report["failed"] else "")

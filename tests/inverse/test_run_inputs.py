@@ -291,3 +291,76 @@ def test_resume_and_later_stages_refuse_a_capture_whose_contents_changed(sphere_
     assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
     assert "is not the capture the result" in stderr and "images/f0000/cam00" in stderr
     assert (outdir / "result.json").read_text() == before
+
+
+# --------------------------------------------------------------------------- item 5
+def _surface(capture_dir):
+    from polarbssrdf.geometry import texel_atlas, to_mitsuba
+    from polarbssrdf.io import load_capture
+    from polarbssrdf.variants import ensure_jit_variant
+
+    ensure_jit_variant()
+    return texel_atlas(to_mitsuba(load_capture(capture_dir, check_images=False).load_mesh()),
+                       32).valid
+
+
+def test_the_confident_share_of_the_surface_is_in_metrics_json(fitted, sphere_capture_dir):
+    from polarbssrdf.io.exr import read_exr
+
+    confidence, _ = read_exr(fitted / "static" / "maps_f0000.exr")
+    valid = _surface(sphere_capture_dir)
+    recorded = json.loads((fitted / "metrics.json").read_text())["confidence"]["static"]["0"]
+    assert recorded["surface_texels"] == int(valid.sum())
+    assert recorded["confident_texels"] == int(((confidence["confidence"] > 0) & valid).sum())
+    assert recorded["confident_fraction"] == pytest.approx(
+        recorded["confident_texels"] / recorded["surface_texels"], abs=1e-4)
+    assert 0 < recorded["confident_fraction"] < 1  # 4 ring views never see the poles
+
+
+def test_a_low_confident_share_is_said_and_warned(sphere_capture_dir, tmp_path):
+    """min_views 3 of 4 ring cameras: few texels are seen by 3 of them."""
+    config = tmp_path / "strict.json"
+    config.write_text(json.dumps({**SMALL, "min_views": 3}))
+    outdir = tmp_path / "out"
+    status, _, stderr = run_cli("reconstruct", sphere_capture_dir, outdir, "--stages", "static",
+                                "--iterations", "1", "--config", config)
+    assert status == 0, stderr
+    share = json.loads((outdir / "metrics.json").read_text())["confidence"]["static"]["0"]
+    assert share["confident_fraction"] < 0.5
+    percent = f"{100 * share['confident_fraction']:.1f}%"
+    lines = [line for line in stderr.splitlines() if line.startswith("polarbssrdf reconstruct: ")]
+    assert f"polarbssrdf reconstruct: static: {percent} of the surface is confident " \
+           "(metrics.json: confidence)" in lines
+    warnings = [line for line in lines if "warning" in line]
+    assert len(warnings) == 1 and f"only {percent} of the surface" in warnings[0]
+    assert "below 50%" in warnings[0]
+
+
+def test_a_fit_with_no_confident_texel_fails(sphere_capture_dir, config_file, tmp_path):
+    """One camera: every texel has at most one usable view, so confidence 0 everywhere."""
+    capture = _copy(sphere_capture_dir, tmp_path / "capture")
+    manifest = json.loads((capture / "capture.json").read_text())
+    frame = manifest["frames"][0]
+    frame["images"] = [record for record in frame["images"] if record["camera"] == "cam00"]
+    (capture / "capture.json").write_text(json.dumps(manifest))
+    outdir = tmp_path / "out"
+    status, _, stderr = _reconstruct(capture, outdir, config_file)
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
+    assert "no texel of the surface is confident" in stderr
+    assert "no texel has the 2 usable texel-views min_views asks for (at most 1)" in stderr
+    assert json.loads((outdir / "result.json").read_text())["maps"] == []
+
+
+# --------------------------------------------------------------------------- item 8
+def test_a_truncated_image_is_named_in_one_line(sphere_capture_dir, config_file, tmp_path,
+                                                capfd):
+    capture = _copy(sphere_capture_dir, tmp_path / "capture")
+    image = _image(capture)
+    image.write_bytes(image.read_bytes()[:image.stat().st_size // 2])
+    capfd.readouterr()
+    status, stdout, stderr = _reconstruct(capture, tmp_path / "out", config_file)
+    assert status == EXIT_USER_ERROR and stdout == ""
+    assert stderr.startswith(f"polarbssrdf reconstruct: error: '{image}' is not a readable "
+                             "OpenEXR file (truncated or damaged: ")
+    assert stderr.count("\n") == 1
+    assert capfd.readouterr() == ("", "")  # nothing of OpenEXR's own on the descriptors

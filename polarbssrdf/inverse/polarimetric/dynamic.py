@@ -41,6 +41,7 @@ from polarbssrdf.inverse.results.directory import (
     read_stage_maps,
     register_map,
     stage_map_path,
+    write_confidence,
     write_metrics,
 )
 from polarbssrdf.io import load_capture
@@ -120,6 +121,7 @@ def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(),
     path = outdir / stage_map_path(STAGE, frame)
     metadata = {"stage": STAGE, "frame": int(frame), "config": config.to_json(),
                 "weights": weights, "texel_views": len(store), "history": result.history,
+                "confidence": result.confidence,
                 "seconds": round(time.perf_counter() - started, 3)}
     write_exr(path, result.maps, metadata=metadata, overwrite=True)
     dr.flush_malloc_cache()
@@ -149,7 +151,8 @@ def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), stat
 
     Frames whose map file exists are skipped when ``resume``; ``label`` names the stage
     on the progress bar. Returns
-    ``{"done": [frames], "skipped": [frames], "failed": {frame: reason}, "seconds"}``.
+    ``{"done": [frames], "skipped": [frames], "failed": {frame: reason}, "seconds",
+    "confidence": {frame: confidence summary}}``.
     """
     started = time.perf_counter()
     outdir = Path(outdir)
@@ -165,11 +168,15 @@ def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), stat
                      threads)
     records, failures = run_frames(task, todo, workers=workers, scheduler=scheduler,
                                    progress=progress, description=label)
-    metrics = {}
+    metrics, confidence = {}, {}
     for frame in sorted(records) + skipped:
         channels, metadata = read_exr(outdir / stage_map_path(STAGE, frame))
         register_map(outdir, STAGE, frame, channels)
         metrics[str(frame)] = (metadata or {}).get("history", [])
+        if (metadata or {}).get("confidence"):
+            confidence[frame] = metadata["confidence"]
     write_metrics(outdir, STAGE, metrics)
+    write_confidence(outdir, STAGE, confidence)
     return {"done": sorted(records), "skipped": skipped, "failed": failures,
-            "seconds": round(time.perf_counter() - started, 3), "records": records}
+            "seconds": round(time.perf_counter() - started, 3), "records": records,
+            "confidence": confidence}

@@ -23,6 +23,7 @@ from polarbssrdf.inverse.observations.build import load_or_build_observations
 from polarbssrdf.inverse.polarimetric.fit import run_polarimetric_fit
 from polarbssrdf.inverse.results.directory import (
     OBSERVATIONS_DIR,
+    write_confidence,
     write_metrics,
     write_stage_maps,
 )
@@ -52,9 +53,11 @@ def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=
     result = run_polarimetric_fit(store, atlas, config, checkpoint=stage_dir / CHECKPOINT_FILE,
                                   progress=progress, description=label)
     metadata = {"config": config.to_json(), "texel_views": len(store),
-                "seconds": round(time.perf_counter() - start, 3), "variant": mi.variant()}
+                "seconds": round(time.perf_counter() - start, 3), "variant": mi.variant(),
+                "confidence": result.confidence}
     result.path = write_stage_maps(outdir, STAGE, frame, result.maps, metadata)
     write_map_previews(result.maps, stage_dir / "previews", f"f{frame:04d}")
     write_metrics(outdir, STAGE, result.history)
+    write_confidence(outdir, STAGE, {frame: result.confidence})
     dr.flush_malloc_cache()
     return result

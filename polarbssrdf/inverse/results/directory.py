@@ -41,7 +41,8 @@ RESULT_FILE = "result.json"
 STAGES = ("static", "dynamic", "bio")
 """The stages whose maps a result holds, in the order they run (each reads the earlier ones)."""
 METRICS_FILE = "metrics.json"
-"""``OUTDIR/metrics.json``: the loss history of every stage (``{stage: history}``)."""
+"""``OUTDIR/metrics.json``: the loss history of every stage (``{stage: history}``), and under
+``confidence`` the confident share of the surface per polarimetric stage and frame."""
 TIMINGS_FILE = "timings.json"
 """``OUTDIR/timings.json``: wall seconds of the last run of each stage."""
 REPORT_FILE = "report.html"
@@ -272,6 +273,15 @@ def write_metrics(outdir, stage, history):
     path = Path(outdir) / METRICS_FILE
     metrics = json.loads(path.read_text()) if path.is_file() else {}
     metrics[stage] = history
+    atomic_write_text(path, json.dumps(metrics, indent=1) + "\n", overwrite=True)
+
+
+def write_confidence(outdir, stage, summaries) -> None:
+    """Record ``{frame: confidence summary}`` of a stage under ``confidence`` in
+    ``OUTDIR/metrics.json`` (atomically): what share of the surface was measured."""
+    path = Path(outdir) / METRICS_FILE
+    metrics = json.loads(path.read_text()) if path.is_file() else {}
+    metrics.setdefault("confidence", {})[stage] = {str(k): v for k, v in summaries.items()}
     atomic_write_text(path, json.dumps(metrics, indent=1) + "\n", overwrite=True)
 
 
