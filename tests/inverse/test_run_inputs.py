@@ -364,3 +364,32 @@ def test_a_truncated_image_is_named_in_one_line(sphere_capture_dir, config_file,
                              "OpenEXR file (truncated or damaged: ")
     assert stderr.count("\n") == 1
     assert capfd.readouterr() == ("", "")  # nothing of OpenEXR's own on the descriptors
+
+
+# --------------------------------------------------------------------------- item 10
+@pytest.mark.parametrize("content", [b"", b"\x00\x01 not a mesh\nat all\n"])
+def test_an_empty_or_garbage_mesh_is_not_read_as_one(content, sphere_capture_dir, config_file,
+                                                     tmp_path):
+    capture = _copy(sphere_capture_dir, tmp_path / "capture")
+    mesh = capture / json.loads((capture / "capture.json").read_text())["mesh"]
+    mesh.write_bytes(content)
+    status, _, stderr = _reconstruct(capture, tmp_path / "out", config_file)
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
+    assert f"{mesh}: could not be read as a mesh" in stderr
+    assert "texture coordinates" not in stderr
+
+
+def test_a_camera_whose_images_are_all_nan_is_one_line_of_ours(sphere_capture_dir, config_file,
+                                                               tmp_path, capfd):
+    capture = _copy(sphere_capture_dir, tmp_path / "capture")
+    _rewrite(_image(capture), lambda c: {n: np.full_like(v, np.nan) for n, v in c.items()})
+    capfd.readouterr()
+    status, _, stderr = _reconstruct(capture, tmp_path / "out", config_file)
+    assert status == 0, stderr
+    lines = stderr.splitlines()
+    assert lines[0] == ("polarbssrdf: warning: camera 'cam01' (light 'light01') sees no texel "
+                        "of frame 0: the remaining texels sample non-finite (NaN) pixels; "
+                        "skipping it")
+    # three ring cameras leave most of the sphere unconfident: the other line says so
+    assert len(lines) == 2 and lines[1].startswith("polarbssrdf reconstruct: warning: static")
+    assert capfd.readouterr() == ("", "")  # no UserWarning with its source line

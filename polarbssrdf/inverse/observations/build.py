@@ -51,7 +51,7 @@ import json
 import logging
 import os
 import shutil
-import warnings
+import sys
 from pathlib import Path
 
 import mitsuba as mi
@@ -679,8 +679,12 @@ def build_observations(capture, frame_index, texture_size, path, *, exclude_came
             statistics.append(stats)
             if len(observed) == 0:
                 reason = _why_nothing(stats)
-                warnings.warn(f"camera {record.camera!r} (light {record.light!r}) sees no texel "
-                              f"of frame {frame_index}: {reason}; skipping it", stacklevel=2)
+                # one line of ours (a UserWarning would print its source line too); tqdm.write
+                # keeps an open progress bar intact
+                message = (f"camera {record.camera!r} (light {record.light!r}) sees no texel "
+                           f"of frame {frame_index}: {reason}; skipping it")
+                logger.warning(message)
+                tqdm.write(f"polarbssrdf: warning: {message}", file=sys.stderr)
                 skipped.append({"camera": record.camera, "light": record.light,
                                 "reason": reason})
                 continue
