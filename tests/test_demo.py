@@ -265,3 +265,31 @@ def test_ctrl_c_during_the_demo_is_one_line_and_says_how_to_resume(tmp_path):
                                                "--resume to continue")
     assert "Traceback" not in stderr
     assert (outdir / "demo.json").is_file() and not (outdir / "report.html").exists()
+
+
+# --------------------------------------------------------------------------- refused up front
+def test_options_synth_would_refuse_are_refused_before_anything_is_written(tmp_path, capsys):
+    """--resolution 33 with raw mosaics failed inside synth after demo.json was written, and
+    the advised --resume with a fixed value was then refused (issue 21, item 11)."""
+    from polarbssrdf.cli import main
+
+    outdir = tmp_path / "demo"
+    arguments = ["demo", str(outdir)] + [f"--{k}={v}" for k, v in TINY.items()]
+    assert main(arguments + ["--resolution=33", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--resolution must be even" in err and "33" in err
+    assert not outdir.exists()
+
+
+def test_after_a_failed_step_the_advised_command_is_accepted(tmp_path, capsys, monkeypatch):
+    from polarbssrdf import demo
+    from polarbssrdf.cli import main
+
+    monkeypatch.setattr(demo.synth_commands, "run", lambda args: 2)  # e.g. a full disk
+    outdir = tmp_path / "demo"
+    arguments = ["demo", str(outdir)] + [f"--{k}={v}" for k, v in TINY.items()] + ["--quiet"]
+    assert main(arguments) == 2
+    err = capsys.readouterr().err
+    assert "rerun the same demo command with --resume" in err
+    # the advice: the same options with --resume pass the demo directory's check
+    demo.prepare_demo_directory(outdir, demo.DemoSettings(**TINY), resume=True)
