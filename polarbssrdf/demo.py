@@ -33,6 +33,7 @@ from pathlib import Path
 
 from polarbssrdf.errors import EXIT_USER_ERROR, USER_ERRORS, CommandError, run_command
 from polarbssrdf.inverse.commands import integer_at_least
+from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.results.directory import TIMINGS_FILE
 from polarbssrdf.io.atomic import atomic_write_text
 from polarbssrdf.report import commands as report_commands
@@ -273,6 +274,8 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
         if not quiet:
             print(message, file=sys.stderr, flush=True)
 
+    if scheduler is not None:
+        check_scheduler(scheduler)  # refused before anything is written
     prepare_demo_directory(outdir, settings, resume=resume, overwrite=overwrite)
     capture_dir, result_dir = outdir / "capture", outdir / "result"
     params = outdir / "truth_settings.json"

@@ -16,9 +16,15 @@ task must be a pure function of its inputs: a rerun writes the same files.
 
 from __future__ import annotations
 
+import asyncio
 import uuid
 
 from tqdm import tqdm
+
+from polarbssrdf.errors import CommandError
+
+SCHEDULER_TIMEOUT_S = 5.0
+"""How long :func:`check_scheduler` waits for a scheduler to answer."""
 
 
 def _reason(error):
@@ -64,6 +70,33 @@ def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progres
             if cluster is not None:
                 cluster.close()
     return records, failures
+
+
+def check_scheduler(address, timeout=None) -> None:
+    """Connect to the Dask scheduler at ``address`` and hang up, before any stage starts:
+    a :class:`CommandError` naming the address when nothing answers within ``timeout`` s
+    (default :data:`SCHEDULER_TIMEOUT_S`).
+
+    Dask's comm layer does the handshake (a plain ``Client`` would leave a half-made
+    client whose clean-up at exit prints a traceback).
+    """
+    from distributed.comm import connect  # deferred, as in run_frames
+
+    timeout = SCHEDULER_TIMEOUT_S if timeout is None else timeout
+
+    async def probe():
+        comm = await connect(address, timeout=timeout)
+        await comm.close()
+
+    try:
+        asyncio.run(probe())
+    except ValueError as error:  # e.g. "missing port number in address 'host'"
+        raise CommandError(f"--scheduler {address!r} is not a Dask scheduler address ({error}); "
+                           "give one like tcp://10.0.0.1:8786") from None
+    except (OSError, asyncio.TimeoutError) as error:
+        raise CommandError(f"no Dask scheduler answers at {address} ({error}): start one there "
+                           f"('dask scheduler', then 'dask worker {address}' on each machine) "
+                           "or drop --scheduler to run the frames here") from None
 
 
 def scheduling_overhead(records, wall_seconds, workers):

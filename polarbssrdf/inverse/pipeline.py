@@ -36,6 +36,7 @@ from polarbssrdf.inverse.biophysical.stage import run_bio_stage
 from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
 from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
 from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
+from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage
 from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
 from polarbssrdf.inverse.polarimetric.static import run_static_stage
@@ -315,6 +316,8 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
             raise CommandError(f"cannot resume in '{outdir}': it holds a run with other settings "
                                f"({'; '.join(differences)}); rerun with its settings to continue "
                                "it, or pass --overwrite instead of --resume to start over")
+    if scheduler is not None and set(stages) & {"dynamic", "bio"}:
+        check_scheduler(scheduler)  # before any stage: not after the static stage's minutes
     select_variant(variant)
     if continuing:
         continue_result_directory(outdir, capture.directory, texture)

@@ -393,3 +393,34 @@ def test_a_camera_whose_images_are_all_nan_is_one_line_of_ours(sphere_capture_di
     # three ring cameras leave most of the sphere unconfident: the other line says so
     assert len(lines) == 2 and lines[1].startswith("polarbssrdf reconstruct: warning: static")
     assert capfd.readouterr() == ("", "")  # no UserWarning with its source line
+
+
+# --------------------------------------------------------------------------- item 7
+def test_an_unreachable_scheduler_is_refused_before_any_stage(sphere_capture_dir, config_file,
+                                                              tmp_path, monkeypatch):
+    """Nothing listens on port 9: a 62-line traceback after the static stage before."""
+    from polarbssrdf.inverse import frames
+
+    monkeypatch.setattr(frames, "SCHEDULER_TIMEOUT_S", 1.0)
+    outdir = tmp_path / "out"
+    status, _, stderr = run_cli("reconstruct", sphere_capture_dir, outdir, "--iterations", "1",
+                                "--config", config_file, "--scheduler", "tcp://127.0.0.1:9",
+                                "--quiet")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1, stderr
+    assert "no Dask scheduler answers at tcp://127.0.0.1:9" in stderr
+    assert not outdir.exists()
+    status, _, stderr = run_cli("reconstruct", sphere_capture_dir, outdir, "--scheduler",
+                                "nohost", "--quiet")
+    assert status == EXIT_USER_ERROR and "'nohost' is not a Dask scheduler address" in stderr
+    demo = tmp_path / "demo"
+    status, _, stderr = run_cli("demo", demo, "--scheduler", "tcp://127.0.0.1:9", "--quiet")
+    assert status == EXIT_USER_ERROR and "tcp://127.0.0.1:9" in stderr and not demo.exists()
+
+
+def test_a_running_scheduler_passes_the_check():
+    from dask.distributed import LocalCluster
+
+    from polarbssrdf.inverse.frames import check_scheduler
+
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as cluster:
+        check_scheduler(cluster.scheduler_address, timeout=5)
