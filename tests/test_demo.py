@@ -293,3 +293,37 @@ def test_after_a_failed_step_the_advised_command_is_accepted(tmp_path, capsys, m
     assert "rerun the same demo command with --resume" in err
     # the advice: the same options with --resume pass the demo directory's check
     demo.prepare_demo_directory(outdir, demo.DemoSettings(**TINY), resume=True)
+
+
+def test_ctrl_c_to_the_process_group_with_workers_is_one_line_and_stops_them(demo_dir,
+                                                                            tmp_path):
+    """What a terminal does: SIGINT to every process of the group, Dask workers included.
+    They printed 67 lines of tracebacks before the one line (issue 21, item 9)."""
+    import psutil
+
+    config = tmp_path / "long_frames.json"
+    config.write_text(json.dumps({"dynamic": {"iterations": 200}}))  # time to catch a frame
+    result_dir = tmp_path / "result"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "polarbssrdf", "reconstruct", str(demo_dir / "capture"),
+         str(result_dir), "--stages", "static,dynamic", "--iterations", "2", "--config",
+         str(config), "--workers", "2", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=default_sigint,
+        start_new_session=True)  # its own process group, as a terminal's job
+    deadline = time.monotonic() + 300
+    while not (result_dir / "dynamic" / "checkpoint_f0001.npz").is_file():
+        assert process.poll() is None, process.communicate()[1]
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    workers = [child for child in psutil.Process(process.pid).children(recursive=True)
+               if "python" in child.name().lower()]
+    assert len(workers) >= 2  # the two workers (and Dask's helper processes)
+    os.killpg(process.pid, signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    ours = [line for line in stderr.splitlines() if "warning:" not in line]
+    assert ours == ["polarbssrdf reconstruct: interrupted; rerun with --resume to continue"], \
+        stderr
+    _, alive = psutil.wait_procs(workers, timeout=30)
+    assert not alive, f"workers still running: {[p.pid for p in alive]}"

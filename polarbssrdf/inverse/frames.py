@@ -17,6 +17,9 @@ task must be a pure function of its inputs: a rerun writes the same files.
 from __future__ import annotations
 
 import asyncio
+import signal
+import sys
+import threading
 import uuid
 
 from tqdm import tqdm
@@ -51,8 +54,7 @@ def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progres
 
         cluster = None
         if scheduler is None:
-            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
+            cluster = _local_cluster(LocalCluster, int(workers))
         client = Client(cluster if cluster is not None else scheduler)
         try:
             token = uuid.uuid4().hex[:8]  # a rerun must not reuse an earlier run's results
@@ -70,6 +72,43 @@ def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progres
             if cluster is not None:
                 cluster.close()
     return records, failures
+
+
+_TRACKER_WARNING = "ignore:resource_tracker:UserWarning"
+
+
+def _local_cluster(factory, workers):
+    """A LocalCluster of ``workers`` single-threaded processes that leave Ctrl-C to us.
+
+    A terminal sends Ctrl-C to the whole process group, workers included, and each
+    worker printed its own tracebacks (67 lines with two) before our one line. Workers
+    are started with SIGINT ignored (an ignored signal stays ignored in the spawned
+    interpreter) and :func:`dask_setup` ignores it again in any worker started later
+    (a nanny's restart); this process catches Ctrl-C and closes the cluster, which
+    stops them.
+    """
+    # A worker killed mid-frame (after Ctrl-C it is busy in a kernel) leaves its semaphores
+    # to multiprocessing's resource tracker, which removes them and says so in a warning
+    # after our last line. The tracker starts with this process's warning options.
+    if _TRACKER_WARNING not in sys.warnoptions:
+        sys.warnoptions.append(_TRACKER_WARNING)
+    previous = signal.getsignal(signal.SIGINT)
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    if in_main_thread:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        return factory(n_workers=workers, threads_per_worker=1, processes=True,
+                       dashboard_address=":0", silence_logs=40, preload=[__name__])
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGINT, previous)
+
+
+def dask_setup(worker) -> None:
+    """Dask's preload hook, run in each worker process of :func:`_local_cluster`: Ctrl-C is
+    the parent's to handle."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def check_scheduler(address, timeout=None) -> None:
