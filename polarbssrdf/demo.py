@@ -34,6 +34,7 @@ from pathlib import Path
 from polarbssrdf.errors import EXIT_USER_ERROR, USER_ERRORS, CommandError, run_command
 from polarbssrdf.inverse.commands import integer_at_least
 from polarbssrdf.inverse.frames import check_scheduler
+from polarbssrdf.inverse.resources import check_memory
 from polarbssrdf.inverse.results.directory import TIMINGS_FILE
 from polarbssrdf.io.atomic import atomic_write_text
 from polarbssrdf.report import commands as report_commands
@@ -265,8 +266,10 @@ def headline_figures(evaluation) -> dict:
 def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, workers=None,
              scheduler=None, quiet=False) -> dict:
     """Run the demo into ``outdir``; returns the contents of ``OUTDIR/metrics.json``."""
-    # deferred, like the pipeline (see _reconstruct_step)
+    # deferred, like the pipeline (see _reconstruct_step); the spectral data pulls in
+    # colour-science
     from polarbssrdf.inverse.evaluation.scores import evaluate_stages
+    from polarbssrdf.spectral import shipped_default_bands
 
     outdir = Path(outdir)
 
@@ -274,8 +277,12 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
         if not quiet:
             print(message, file=sys.stderr, flush=True)
 
+    # refused before anything is written: the run's memory (synth's bands, every view but
+    # the held-out one fitted), the scheduler
+    check_memory(settings.texture, len(shipped_default_bands()), settings.views - 1,
+                 ("static", "dynamic", "bio"), what="the demo")
     if scheduler is not None:
-        check_scheduler(scheduler)  # refused before anything is written
+        check_scheduler(scheduler)
     prepare_demo_directory(outdir, settings, resume=resume, overwrite=overwrite)
     capture_dir, result_dir = outdir / "capture", outdir / "result"
     params = outdir / "truth_settings.json"

@@ -39,6 +39,7 @@ from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
 from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage
 from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
+from polarbssrdf.inverse.resources import check_memory
 from polarbssrdf.inverse.polarimetric.static import run_static_stage
 from polarbssrdf.inverse.results.directory import (
     RESULT_FILE,
@@ -298,6 +299,9 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     if texture is None:
         texture = (int(capture.truth.texture_size) if capture.truth is not None
                    else DEFAULT_TEXTURE)
+    views = sum(r.kind in ("analyser", "raw") and r.camera not in holdout
+                for r in capture.manifest.frame(frame).images)
+    check_memory(texture, len(capture.manifest.bands), views, stages)  # before any writing
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise CommandError(f"output directory '{outdir}' exists and is not a directory")

@@ -424,3 +424,55 @@ def test_a_running_scheduler_passes_the_check():
 
     with LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as cluster:
         check_scheduler(cluster.scheduler_address, timeout=5)
+
+
+# --------------------------------------------------------------------------- item 6
+def test_a_texture_too_large_for_the_machine_is_refused_before_anything_is_written(
+        sphere_capture_dir, tmp_path):
+    """--texture 100000: a NumPy _ArrayMemoryError traceback, with result.json left behind."""
+    from polarbssrdf.inverse.resources import machine_memory
+
+    outdir = tmp_path / "out"
+    status, _, stderr = run_cli("reconstruct", sphere_capture_dir, outdir, "--texture", "100000",
+                                "--quiet")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1, stderr
+    total, _ = machine_memory()
+    assert "100000 x 100000 texels, 6 bands, 4 views" in stderr
+    assert f"more than this machine's {total / 2**30:,.1f} GB" in stderr
+    assert "use a smaller --texture" in stderr
+    assert not outdir.exists()
+    demo = tmp_path / "demo"
+    status, _, stderr = run_cli("demo", demo, "--texture", "100000", "--quiet")
+    assert status == EXIT_USER_ERROR and "the demo would need about" in stderr
+    assert not demo.exists()
+
+
+def test_the_memory_estimate_grows_with_the_texels_and_the_largest_texture_fits():
+    from polarbssrdf.inverse import resources
+
+    stages = ("static", "dynamic", "bio")
+    base = resources.run_memory_bytes(0, 6, 8, stages)
+    small, large = (resources.run_memory_bytes(t, 6, 8, stages) - base for t in (256, 1024))
+    assert large == 16 * small > 0  # T^2
+    assert resources.run_memory_bytes(256, 12, 8, stages) > resources.run_memory_bytes(
+        256, 6, 8, stages)
+    assert resources.run_memory_bytes(256, 6, 8, ("static",)) <= resources.run_memory_bytes(
+        256, 6, 8, stages)
+    for memory in (2**30, 24 * 2**30, 256 * 2**30):
+        largest = resources.largest_texture(memory, 6, 8, stages)
+        assert resources.run_memory_bytes(largest, 6, 8, stages) <= memory
+        assert resources.run_memory_bytes(largest + 1, 6, 8, stages) > memory
+
+
+def test_the_check_compares_with_the_machines_memory(monkeypatch, capsys):
+    from polarbssrdf.errors import CommandError
+    from polarbssrdf.inverse import resources
+
+    stages = ("static",)
+    needed = resources.run_memory_bytes(512, 6, 4, stages)
+    monkeypatch.setattr(resources, "machine_memory", lambda: (needed - 1, needed - 1))
+    with pytest.raises(CommandError, match="use a smaller --texture"):
+        resources.check_memory(512, 6, 4, stages)
+    monkeypatch.setattr(resources, "machine_memory", lambda: (needed, needed // 2))
+    assert resources.check_memory(512, 6, 4, stages) == needed
+    assert "warning" in capsys.readouterr().err  # fits the machine, not what is free now
