@@ -12,6 +12,11 @@ one after another. A worker that dies mid-frame has its frame rescheduled by
 Dask on another worker (up to ``allowed-failures``, 3 by default); an
 exception inside a frame is retried ``retries`` times, then reported. The
 task must be a pure function of its inputs: a rerun writes the same files.
+
+Ctrl-C in a terminal reaches the local cluster's workers too (one process
+group): they ignore it and this process, which handles it, closes the cluster
+(:func:`_local_cluster`). :func:`check_scheduler` tells before any work
+whether a scheduler answers at an address.
 """
 
 from __future__ import annotations
@@ -50,11 +55,11 @@ def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progres
                 bar.update()
             return records, failures
         # Dask (0.5 s to import) only when frames go to a cluster
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, as_completed
 
         cluster = None
         if scheduler is None:
-            cluster = _local_cluster(LocalCluster, int(workers))
+            cluster = _local_cluster(int(workers))
         client = Client(cluster if cluster is not None else scheduler)
         try:
             token = uuid.uuid4().hex[:8]  # a rerun must not reuse an earlier run's results
@@ -77,7 +82,7 @@ def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progres
 _TRACKER_WARNING = "ignore:resource_tracker:UserWarning"
 
 
-def _local_cluster(factory, workers):
+def _local_cluster(workers):
     """A LocalCluster of ``workers`` single-threaded processes that leave Ctrl-C to us.
 
     A terminal sends Ctrl-C to the whole process group, workers included, and each
@@ -87,6 +92,8 @@ def _local_cluster(factory, workers):
     (a nanny's restart); this process catches Ctrl-C and closes the cluster, which
     stops them.
     """
+    from dask.distributed import LocalCluster  # deferred, as in run_frames
+
     # A worker killed mid-frame (after Ctrl-C it is busy in a kernel) leaves its semaphores
     # to multiprocessing's resource tracker, which removes them and says so in a warning
     # after our last line. The tracker starts with this process's warning options.
@@ -97,8 +104,8 @@ def _local_cluster(factory, workers):
     if in_main_thread:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        return factory(n_workers=workers, threads_per_worker=1, processes=True,
-                       dashboard_address=":0", silence_logs=40, preload=[__name__])
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                            dashboard_address=":0", silence_logs=40, preload=[__name__])
     finally:
         if in_main_thread:
             signal.signal(signal.SIGINT, previous)
