@@ -1,4 +1,7 @@
-"""What ``reconstruct`` reads is what it checks (issue 21): image values, cache fingerprints.
+"""What ``reconstruct``, ``evaluate`` and ``report`` check before they trust their inputs
+(issue 21, items 2-8 and 10): image values as read, content fingerprints of the cache, the
+capture's identity, the confident share of the surface, the memory a run needs, the
+scheduler, damaged EXRs and meshes.
 
 Each test copies the tiny session capture (tests/inverse/conftest.py), changes it the way
 a user's file goes wrong, and runs the command in this process for one epoch.
@@ -203,7 +206,8 @@ def test_result_json_records_the_captures_identity(fitted, sphere_capture_dir):
     assert identity["images"] == {
         str(path.relative_to(sphere_capture_dir)):
             hashlib.blake2b(path.read_bytes(), digest_size=16).hexdigest() for path in images}
-    mesh = sphere_capture_dir / json.loads((sphere_capture_dir / "capture.json").read_text())["mesh"]
+    manifest = json.loads((sphere_capture_dir / "capture.json").read_text())
+    mesh = sphere_capture_dir / manifest["mesh"]
     assert identity["mesh"] == hashlib.blake2b(mesh.read_bytes(), digest_size=16).hexdigest()
 
 

@@ -8,8 +8,9 @@ a JSON object with any subset of the keys below; nested ``weights``,
 ``bounds``, ``initial`` and ``learning_rates`` objects override only the
 keys they name. Every value must have its JSON type (a flag ``true`` or
 ``false``, not ``"false"``; an integer ``30``, not ``30.0``); unknown keys,
-wrong types and out-of-range values are errors that name the key. The ``bio`` object is carried for the biophysical stage, which
-checks it (:func:`polarbssrdf.inverse.biophysical.config.bio_config`).
+wrong types and out-of-range values are errors that name the key. The
+``bio`` object is carried for the biophysical stage, which checks it
+(:func:`polarbssrdf.inverse.biophysical.config.bio_config`).
 """
 
 from __future__ import annotations
