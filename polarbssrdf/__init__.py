@@ -6,9 +6,13 @@ each time :func:`mitsuba.set_variant` changes it. :func:`register_plugins`
 does the same on demand.
 """
 
-from polarbssrdf._llvm import configure_libllvm
+from polarbssrdf._llvm import LibLLVMError, configure_libllvm, one_line_if_uncaught
 
-configure_libllvm()
+try:
+    configure_libllvm()  # before Mitsuba imports Dr.Jit
+except LibLLVMError as _error:
+    one_line_if_uncaught(_error)
+    raise
 
 from polarbssrdf.registration import register_plugins  # noqa: E402
 

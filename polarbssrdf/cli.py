@@ -17,6 +17,7 @@ from polarbssrdf.errors import EXIT_INTERRUPTED, caused_by_interrupt, run_comman
 
 COMMAND_MODULES = (
     "polarbssrdf.render.commands",
+    "polarbssrdf.render.scenes",
     "polarbssrdf.skin.commands",
     "polarbssrdf.synth.commands",
     "polarbssrdf.calibration.commands",

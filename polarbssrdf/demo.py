@@ -33,6 +33,8 @@ from pathlib import Path
 
 from polarbssrdf.errors import EXIT_USER_ERROR, USER_ERRORS, CommandError, run_command
 from polarbssrdf.inverse.commands import integer_at_least
+from polarbssrdf.inverse.frames import check_scheduler
+from polarbssrdf.inverse.resources import check_memory
 from polarbssrdf.inverse.results.directory import TIMINGS_FILE
 from polarbssrdf.io.atomic import atomic_write_text
 from polarbssrdf.report import commands as report_commands
@@ -95,6 +97,24 @@ class DemoSettings:
                 raise ValueError(f"demo --{name} must be an integer >= {minimum}, got {value!r}")
         if self.iterations is not None and self.iterations < 1:
             raise ValueError(f"demo --iterations must be >= 1, got {self.iterations}")
+        if self.raw and self.resolution % 2:
+            raise ValueError(f"demo --resolution must be even for raw sensor mosaics (2 x 2 "
+                             f"polarizer cells), got {self.resolution}; or pass --analyser")
+        try:  # whatever else synth would refuse, refused now, before anything is written
+            self.synthesis_settings()
+        except ValueError as error:
+            raise ValueError(f"demo: synth would refuse these settings: {error}") from None
+
+    def synthesis_settings(self):
+        """The :class:`~polarbssrdf.synth.synthesize.SynthesisSettings` of the demo's capture
+        (what :func:`synth_arguments` asks ``polarbssrdf synth`` for)."""
+        # deferred: the renderer's modules take a second to import, and the command line
+        # imports this module for its parser at start-up
+        from polarbssrdf.synth.synthesize import SynthesisSettings
+
+        return SynthesisSettings(object="face", views=self.views, frames=self.frames,
+                                 resolution=self.resolution, texture=self.texture,
+                                 spp=self.spp, seed=self.seed, raw=self.raw)
 
     @property
     def holdout(self) -> str:
@@ -172,6 +192,12 @@ def prepare_demo_directory(outdir: Path, settings: DemoSettings, *, resume=False
                       overwrite=True)
 
 
+RERUN_ADVICE = ("once the cause is fixed, rerun the same demo command with --resume to go on "
+                "(with other options, --overwrite starts over: --resume needs the same ones)")
+"""What to do after a step failed. The demo's options were checked before anything was
+written, so such a failure is not in them: the same command with --resume is accepted."""
+
+
 def _run_step(command_module, arguments, say) -> None:
     """Run ``polarbssrdf ARGUMENTS`` through its command module's own parser and handler."""
     say("$ polarbssrdf " + " ".join(arguments))
@@ -180,7 +206,7 @@ def _run_step(command_module, arguments, say) -> None:
     status = run_command(parser.parse_args(arguments))
     if status:
         raise CommandError(f"'polarbssrdf {arguments[0]}' failed (status {status}; its message "
-                           "is above); fix it and rerun the demo with --resume")
+                           f"is above); {RERUN_ADVICE}")
 
 
 def _reconstruct_step(settings, capture_dir, result_dir, resume, workers, scheduler, quiet,
@@ -200,13 +226,13 @@ def _reconstruct_step(settings, capture_dir, result_dir, resume, workers, schedu
     except USER_ERRORS as error:
         print(f"polarbssrdf reconstruct: error: {error}", file=sys.stderr)
         raise CommandError(f"'polarbssrdf reconstruct' failed (status {EXIT_USER_ERROR}; its "
-                           "message is above); fix it and rerun the demo with --resume") from None
+                           f"message is above); {RERUN_ADVICE}") from None
     print(result.summary())
     if result.failed:
         for frame, reason in sorted(result.failed.items()):
             print(f"polarbssrdf reconstruct: frame {frame} failed: {reason}", file=sys.stderr)
         raise CommandError(f"'polarbssrdf reconstruct' failed ({len(result.failed)} frame(s); "
-                           "their messages are above); fix it and rerun the demo with --resume")
+                           f"their messages are above); {RERUN_ADVICE}")
 
 
 def headline_figures(evaluation) -> dict:
@@ -240,8 +266,10 @@ def headline_figures(evaluation) -> dict:
 def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, workers=None,
              scheduler=None, quiet=False) -> dict:
     """Run the demo into ``outdir``; returns the contents of ``OUTDIR/metrics.json``."""
-    # deferred, like the pipeline (see _reconstruct_step)
+    # deferred, like the pipeline (see _reconstruct_step); the spectral data pulls in
+    # colour-science
     from polarbssrdf.inverse.evaluation.scores import evaluate_stages
+    from polarbssrdf.spectral import shipped_default_bands
 
     outdir = Path(outdir)
 
@@ -249,6 +277,12 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
         if not quiet:
             print(message, file=sys.stderr, flush=True)
 
+    # refused before anything is written: the run's memory (synth's bands, every view but
+    # the held-out one fitted), the scheduler
+    check_memory(settings.texture, len(shipped_default_bands()), settings.views - 1,
+                 ("static", "dynamic", "bio"), what="the demo")
+    if scheduler is not None:
+        check_scheduler(scheduler)
     prepare_demo_directory(outdir, settings, resume=resume, overwrite=overwrite)
     capture_dir, result_dir = outdir / "capture", outdir / "result"
     params = outdir / "truth_settings.json"

@@ -1,5 +1,7 @@
 """Helpers shared by the tests (on the pytest path through ``pythonpath``)."""
 
+import contextlib
+import io
 import signal
 
 import numpy as np
@@ -22,3 +24,13 @@ def default_sigint():
     KeyboardInterrupt; a test that sends SIGINT would see the child run to the end.
     """
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def run_cli(*argv):
+    """``(exit status, stdout, stderr)`` of ``polarbssrdf ARGV`` run in this process."""
+    from polarbssrdf.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main([str(a) for a in argv])
+    return status, out.getvalue(), err.getvalue()

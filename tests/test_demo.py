@@ -265,3 +265,65 @@ def test_ctrl_c_during_the_demo_is_one_line_and_says_how_to_resume(tmp_path):
                                                "--resume to continue")
     assert "Traceback" not in stderr
     assert (outdir / "demo.json").is_file() and not (outdir / "report.html").exists()
+
+
+# --------------------------------------------------------------------------- refused up front
+def test_options_synth_would_refuse_are_refused_before_anything_is_written(tmp_path, capsys):
+    """--resolution 33 with raw mosaics failed inside synth after demo.json was written, and
+    the advised --resume with a fixed value was then refused (issue 21, item 11)."""
+    from polarbssrdf.cli import main
+
+    outdir = tmp_path / "demo"
+    arguments = ["demo", str(outdir)] + [f"--{k}={v}" for k, v in TINY.items()]
+    assert main(arguments + ["--resolution=33", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--resolution must be even" in err and "33" in err
+    assert not outdir.exists()
+
+
+def test_after_a_failed_step_the_advised_command_is_accepted(tmp_path, capsys, monkeypatch):
+    from polarbssrdf import demo
+    from polarbssrdf.cli import main
+
+    monkeypatch.setattr(demo.synth_commands, "run", lambda args: 2)  # e.g. a full disk
+    outdir = tmp_path / "demo"
+    arguments = ["demo", str(outdir)] + [f"--{k}={v}" for k, v in TINY.items()] + ["--quiet"]
+    assert main(arguments) == 2
+    err = capsys.readouterr().err
+    assert "rerun the same demo command with --resume" in err
+    # the advice: the same options with --resume pass the demo directory's check
+    demo.prepare_demo_directory(outdir, demo.DemoSettings(**TINY), resume=True)
+
+
+def test_ctrl_c_to_the_process_group_with_workers_is_one_line_and_stops_them(demo_dir,
+                                                                            tmp_path):
+    """What a terminal does: SIGINT to every process of the group, Dask workers included.
+    They printed 67 lines of tracebacks before the one line (issue 21, item 9)."""
+    import psutil
+
+    config = tmp_path / "long_frames.json"
+    config.write_text(json.dumps({"dynamic": {"iterations": 200}}))  # time to catch a frame
+    result_dir = tmp_path / "result"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "polarbssrdf", "reconstruct", str(demo_dir / "capture"),
+         str(result_dir), "--stages", "static,dynamic", "--iterations", "2", "--config",
+         str(config), "--workers", "2", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=default_sigint,
+        start_new_session=True)  # its own process group, as a terminal's job
+    deadline = time.monotonic() + 300
+    while not (result_dir / "dynamic" / "checkpoint_f0001.npz").is_file():
+        assert process.poll() is None, process.communicate()[1]
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    workers = [child for child in psutil.Process(process.pid).children(recursive=True)
+               if "python" in child.name().lower()]
+    assert len(workers) >= 2  # the two workers (and Dask's helper processes)
+    os.killpg(process.pid, signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    ours = [line for line in stderr.splitlines() if "warning:" not in line]
+    assert ours == ["polarbssrdf reconstruct: interrupted; rerun with --resume to continue"], \
+        stderr
+    _, alive = psutil.wait_procs(workers, timeout=30)
+    assert not alive, f"workers still running: {[p.pid for p in alive]}"

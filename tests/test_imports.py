@@ -22,6 +22,7 @@ INVERSE_RANKS = {
     "polarbssrdf.inverse.results": 0,
     "polarbssrdf.inverse.observations": 0,
     "polarbssrdf.inverse.frames": 0,
+    "polarbssrdf.inverse.resources": 0,
     "polarbssrdf.inverse.polarimetric": 1,
     "polarbssrdf.inverse.biophysical": 2,
     "polarbssrdf.inverse.evaluation": 3,

@@ -95,6 +95,11 @@ def load_mesh(path, scale_to_mm=1.0):
         loaded = trimesh.load(path, process=False, maintain_order=True, force="mesh")
     except Exception as error:  # trimesh raises many types for malformed files
         raise ValueError(f"{path}: cannot read mesh ({error})") from error
+    if len(loaded.faces) == 0 or len(loaded.vertices) == 0:
+        # trimesh reads an empty or garbage file as an empty mesh, without an error
+        raise ValueError(f"{path}: could not be read as a mesh (no triangles in it: an empty "
+                         f"file, or not in the {path.suffix.lstrip('.').upper() or 'mesh'} "
+                         "format)")
     uv = getattr(loaded.visual, "uv", None)
     if uv is None:
         raise ValueError(f"{path}: the mesh has no texture coordinates")

@@ -17,8 +17,7 @@ from pathlib import Path
 from polarbssrdf.inverse.config import DEFAULT_TEXTURE
 from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
 from polarbssrdf.inverse.polarimetric.config import DEFAULT_DYNAMIC_ITERATIONS, StaticConfig
-from polarbssrdf.inverse.results.directory import STAGES, check_report_path
-from polarbssrdf.io.atomic import atomic_write_text
+from polarbssrdf.inverse.results.directory import STAGES
 from polarbssrdf.variants import DEFAULT_VARIANT
 
 DOC = "docs/reconstruct.md"
@@ -87,8 +86,8 @@ def register(subparsers) -> None:
                           help="continue the run in OUTDIR from its last checkpoint; needs the "
                                "same capture and settings (differences are named)")
     existing.add_argument("--overwrite", action="store_true",
-                          help="start over in OUTDIR, removing the earlier run's outputs (the "
-                               "observation cache is reused if its inputs match)")
+                          help="start over in OUTDIR, removing the earlier run's outputs and "
+                               "its observation cache")
     parser.add_argument("--variant", default=DEFAULT_VARIANT,
                         help="Mitsuba variant, a JIT autodiff polarized one "
                              "(default: %(default)s)")
@@ -127,6 +126,10 @@ def register(subparsers) -> None:
     parser.add_argument("--variant", default=DEFAULT_VARIANT,
                         help="Mitsuba variant of the re-renders, a mono polarized one "
                              "(default: %(default)s)")
+    parser.add_argument("--force", action="store_true",
+                        help="score against a capture that is not the result's (result.json "
+                             "records which capture the maps were fitted on; another one is "
+                             "refused with what differs)")
     parser.set_defaults(run=run_evaluate)
 
 
@@ -158,16 +161,9 @@ def run_reconstruct(args) -> int:
 
 def run_evaluate(args) -> int:
     """Execute ``polarbssrdf evaluate``; prints the JSON, returns the exit status 0."""
-    from polarbssrdf.inverse.pipeline import evaluate, evaluate_inputs
+    from polarbssrdf.inverse.pipeline import evaluate
 
-    capture = evaluate_inputs(args.outdir, args.truth, args.variant)
-    if args.out is not None:
-        check_report_path(args.out, args.outdir, capture.directory)
-    report = evaluate(args.outdir, capture, frame=args.frame, stage=args.stage, spp=args.spp,
-                      variant=args.variant)
-    text = json.dumps(report, indent=2) + "\n"
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(args.out, text, overwrite=True)
-    sys.stdout.write(text)
+    report = evaluate(args.outdir, args.truth, frame=args.frame, stage=args.stage, spp=args.spp,
+                      variant=args.variant, force=args.force, out=args.out)
+    sys.stdout.write(json.dumps(report, indent=2) + "\n")
     return 0

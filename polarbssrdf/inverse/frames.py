@@ -12,13 +12,27 @@ one after another. A worker that dies mid-frame has its frame rescheduled by
 Dask on another worker (up to ``allowed-failures``, 3 by default); an
 exception inside a frame is retried ``retries`` times, then reported. The
 task must be a pure function of its inputs: a rerun writes the same files.
+
+Ctrl-C in a terminal reaches the local cluster's workers too (one process
+group): they ignore it and this process, which handles it, closes the cluster
+(:func:`_local_cluster`). :func:`check_scheduler` tells before any work
+whether a scheduler answers at an address.
 """
 
 from __future__ import annotations
 
+import asyncio
+import signal
+import sys
+import threading
 import uuid
 
 from tqdm import tqdm
+
+from polarbssrdf.errors import CommandError
+
+SCHEDULER_TIMEOUT_S = 5.0
+"""How long :func:`check_scheduler` waits for a scheduler to answer."""
 
 
 def _reason(error):
@@ -41,12 +55,11 @@ def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progres
                 bar.update()
             return records, failures
         # Dask (0.5 s to import) only when frames go to a cluster
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, as_completed
 
         cluster = None
         if scheduler is None:
-            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
+            cluster = _local_cluster(int(workers))
         client = Client(cluster if cluster is not None else scheduler)
         try:
             token = uuid.uuid4().hex[:8]  # a rerun must not reuse an earlier run's results
@@ -64,6 +77,72 @@ def run_frames(task, frames, *, workers=None, scheduler=None, retries=1, progres
             if cluster is not None:
                 cluster.close()
     return records, failures
+
+
+_TRACKER_WARNING = "ignore:resource_tracker:UserWarning"
+
+
+def _local_cluster(workers):
+    """A LocalCluster of ``workers`` single-threaded processes that leave Ctrl-C to us.
+
+    A terminal sends Ctrl-C to the whole process group, workers included, and each
+    worker printed its own tracebacks (67 lines with two) before our one line. Workers
+    are started with SIGINT ignored (an ignored signal stays ignored in the spawned
+    interpreter) and :func:`dask_setup` ignores it again in any worker started later
+    (a nanny's restart); this process catches Ctrl-C and closes the cluster, which
+    stops them.
+    """
+    from dask.distributed import LocalCluster  # deferred, as in run_frames
+
+    # A worker killed mid-frame (after Ctrl-C it is busy in a kernel) leaves its semaphores
+    # to multiprocessing's resource tracker, which removes them and says so in a warning
+    # after our last line. The tracker starts with this process's warning options.
+    if _TRACKER_WARNING not in sys.warnoptions:
+        sys.warnoptions.append(_TRACKER_WARNING)
+    previous = signal.getsignal(signal.SIGINT)
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    if in_main_thread:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                            dashboard_address=":0", silence_logs=40, preload=[__name__])
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGINT, previous)
+
+
+def dask_setup(worker) -> None:
+    """Dask's preload hook, run in each worker process of :func:`_local_cluster`: Ctrl-C is
+    the parent's to handle."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def check_scheduler(address, timeout=None) -> None:
+    """Connect to the Dask scheduler at ``address`` and hang up, before any stage starts:
+    a :class:`CommandError` naming the address when nothing answers within ``timeout`` s
+    (default :data:`SCHEDULER_TIMEOUT_S`).
+
+    Dask's comm layer does the handshake (a plain ``Client`` would leave a half-made
+    client whose clean-up at exit prints a traceback).
+    """
+    from distributed.comm import connect  # deferred, as in run_frames
+
+    timeout = SCHEDULER_TIMEOUT_S if timeout is None else timeout
+
+    async def probe():
+        comm = await connect(address, timeout=timeout)
+        await comm.close()
+
+    try:
+        asyncio.run(probe())
+    except ValueError as error:  # e.g. "missing port number in address 'host'"
+        raise CommandError(f"--scheduler {address!r} is not a Dask scheduler address ({error}); "
+                           "give one like tcp://10.0.0.1:8786") from None
+    except (OSError, asyncio.TimeoutError) as error:
+        raise CommandError(f"no Dask scheduler answers at {address} ({error}): start one there "
+                           f"('dask scheduler', then 'dask worker {address}' on each machine) "
+                           "or drop --scheduler to run the frames here") from None
 
 
 def scheduling_overhead(records, wall_seconds, workers):

@@ -36,20 +36,28 @@ from polarbssrdf.inverse.biophysical.stage import run_bio_stage
 from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
 from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
 from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
+from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage
+from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
+from polarbssrdf.inverse.resources import check_memory
 from polarbssrdf.inverse.polarimetric.static import run_static_stage
 from polarbssrdf.inverse.results.directory import (
     RESULT_FILE,
     STAGES,
     ResultDirectory,
+    capture_differences,
+    check_report_path,
+    check_result_capture,
     continue_result_directory,
     prepare_result_directory,
     read_result,
     record_stage_seconds,
 )
 from polarbssrdf.io import load_capture
+from polarbssrdf.io.atomic import atomic_write_text
 from polarbssrdf.io.capture import json_differences
 from polarbssrdf.io.exr import read_exr
+from polarbssrdf.io.identity import capture_identity
 from polarbssrdf.variants import (
     DEFAULT_VARIANT,
     check_variant,
@@ -167,19 +175,24 @@ def _short(value, limit=60) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
-def resume_differences(outdir: Path, capture_dir: Path, texture: int, settings: dict) -> list:
+def resume_differences(outdir: Path, capture, texture: int, settings: dict) -> list:
     """Settings of the run in ``outdir`` that differ from this one, as readable strings.
 
     Nested settings (the config) are compared key by key, so the message names
-    e.g. ``config.iterations`` rather than the whole config.
+    e.g. ``config.iterations`` rather than the whole config; a capture at the
+    same path whose contents changed is named too.
     """
     if not (outdir / RESULT_FILE).is_file():
         return []
     manifest = read_result(outdir)
     differences = []
+    capture_dir = Path(capture.directory)
     if Path(manifest.capture) != capture_dir.resolve():
         differences.append(f"capture: {manifest.capture} (first run) vs {capture_dir.resolve()} "
                            "(now)")
+    else:
+        differences += [f"capture contents: {text}"
+                        for text in capture_differences(manifest, capture)]
     if manifest.texture_size != texture:
         differences.append(f"--texture: {manifest.texture_size} (first run) vs {texture} (now)")
     names = {"stages": "--stages", "frame": "--frame", "holdout": "--holdout"}
@@ -207,6 +220,29 @@ def _texel_views(path: Path) -> int | None:
         return None
     value = (metadata or {}).get("texel_views")
     return int(value) if isinstance(value, (int, float)) else None
+
+
+def say_confidence(stage, summaries, progress=True) -> None:
+    """Say on stderr what share of the surface ``stage`` measured (``{frame: summary}`` of
+    :func:`~polarbssrdf.inverse.polarimetric.fit.confidence_summary`): one line with the
+    progress display, and always a warning per frame below
+    :data:`~polarbssrdf.inverse.polarimetric.fit.LOW_CONFIDENT_FRACTION`."""
+    if not summaries:
+        return
+    fractions = [100 * s["confident_fraction"] for s in summaries.values()]
+    if progress:
+        share = (f"{fractions[0]:.1f}%" if len(fractions) == 1 else
+                 f"{min(fractions):.1f}-{max(fractions):.1f}% (over {len(fractions)} frames)")
+        print(f"polarbssrdf reconstruct: {stage}: {share} of the surface is confident "
+              "(metrics.json: confidence)", file=sys.stderr, flush=True)
+    for frame, summary in sorted(summaries.items(), key=lambda item: int(item[0])):
+        if summary["confident_fraction"] < LOW_CONFIDENT_FRACTION:
+            print(f"polarbssrdf reconstruct: warning: {stage}, frame {frame}: only "
+                  f"{100 * summary['confident_fraction']:.1f}% of the surface "
+                  f"({summary['confident_texels']:,} of {summary['surface_texels']:,} texels) "
+                  f"is confident (below {100 * LOW_CONFIDENT_FRACTION:.0f}%): the rest of its "
+                  "maps is filled in from neighbours, not measured; cameras that cover more "
+                  "of the object raise it", file=sys.stderr, flush=True)
 
 
 def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, texture=None,
@@ -263,6 +299,9 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     if texture is None:
         texture = (int(capture.truth.texture_size) if capture.truth is not None
                    else DEFAULT_TEXTURE)
+    views = sum(r.kind in ("analyser", "raw") and r.camera not in holdout
+                for r in capture.manifest.frame(frame).images)
+    check_memory(texture, len(capture.manifest.bands), views, stages)  # before any writing
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise CommandError(f"output directory '{outdir}' exists and is not a directory")
@@ -276,17 +315,20 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     # later stages on an earlier run read its maps and add their own (no resume needed)
     continuing = stages[0] != STAGES[0]
     if resume and not continuing and outdir.is_dir() and any(outdir.iterdir()):
-        differences = resume_differences(outdir, capture.directory, texture, settings)
+        differences = resume_differences(outdir, capture, texture, settings)
         if differences:
             raise CommandError(f"cannot resume in '{outdir}': it holds a run with other settings "
                                f"({'; '.join(differences)}); rerun with its settings to continue "
                                "it, or pass --overwrite instead of --resume to start over")
+    if scheduler is not None and set(stages) & {"dynamic", "bio"}:
+        check_scheduler(scheduler)  # before any stage: not after the static stage's minutes
     select_variant(variant)
     if continuing:
         continue_result_directory(outdir, capture.directory, texture)
+        check_result_capture(outdir, capture, f"capture '{capture.directory}'")
     else:
         prepare_result_directory(outdir, capture.directory, texture, settings, resume=resume,
-                                 overwrite=overwrite)
+                                 overwrite=overwrite, identity=capture_identity(capture, frame))
 
     lines, failed = [], {}
     for number, stage in enumerate(stages, start=1):
@@ -299,6 +341,7 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
         if stage == "static":
             result = run_static_stage(capture, outdir, config, texture, frame=frame,
                                       holdout=tuple(holdout), progress=progress, label=label)
+            say_confidence(stage, {frame: result.confidence}, progress)
             views = _texel_views(result.path)
             epochs = len(result.history)
             final = result.history[-1].get("total") if result.history else None
@@ -312,6 +355,7 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                                        resume=resume or continuing, progress=progress,
                                        variant=variant, label=label)
             failed.update(report["failed"])
+            say_confidence(stage, report["confidence"], progress)
             lines.append(f"  dynamic: {len(report['done'])} frame(s) fitted"
                          + (f", {len(report['skipped'])} already done" if report["skipped"] else "")
                          + (f", {len(report['failed'])} failed" if report["failed"] else "")
@@ -332,19 +376,30 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                           stage_lines=lines, failed=failed)
 
 
-def evaluate_inputs(outdir, truth=None, variant=DEFAULT_VARIANT):
-    """Check :func:`evaluate`'s inputs before any work; returns the capture with the truth."""
+def evaluate_inputs(outdir, truth=None, variant=DEFAULT_VARIANT, force=False):
+    """Check :func:`evaluate`'s inputs before any work; returns the capture with the truth.
+
+    The capture must be the one the result was fitted on (``result.json``'s
+    ``capture_identity``), unless ``force``: then a line on stderr says how it differs.
+    """
     if not variant.endswith("mono_polarized") or variant not in mi.variants():
         usable = jit_mono_polarized_variants(mi.variants())
         raise CommandError(f"--variant {variant!r}: held-out views are re-rendered per band "
                            f"in an available JIT mono polarized variant; use one of: "
                            f"{', '.join(usable) or DEFAULT_VARIANT}")
     ResultDirectory(outdir)  # the clear error when outdir is not a result
-    return truth_capture(Path(outdir), truth)
+    capture = truth_capture(Path(outdir), truth)
+    what = (f"the capture '{capture.directory}' recorded in result.json" if truth is None
+            else f"--truth '{capture.directory}'")
+    differences = check_result_capture(outdir, capture, what, force=force)
+    if differences:
+        print(f"polarbssrdf evaluate: warning: {what} is not the result's capture "
+              f"({'; '.join(differences)}); scoring it anyway (--force)", file=sys.stderr)
+    return capture
 
 
 def evaluate(outdir, truth=None, *, frame=0, stage="static", spp=DEFAULT_SPP,
-             variant=DEFAULT_VARIANT) -> dict:
+             variant=DEFAULT_VARIANT, force=False, out=None) -> dict:
     """Score a result's maps against a synthetic capture's ground truth (what ``evaluate``
     prints).
 
@@ -362,6 +417,13 @@ def evaluate(outdir, truth=None, *, frame=0, stage="static", spp=DEFAULT_SPP,
         Samples per pixel of the held-out re-renders.
     variant : str
         A JIT mono polarized Mitsuba variant for the re-renders.
+    force : bool
+        Score against a capture that is not the result's (``result.json``
+        records the identity of the capture it was fitted on; another one is
+        refused with what differs).
+    out : path, optional
+        Also write the JSON there (atomically); it may not replace one of the
+        result's files or lie inside the capture (checked before any work).
 
     Returns
     -------
@@ -369,7 +431,13 @@ def evaluate(outdir, truth=None, *, frame=0, stage="static", spp=DEFAULT_SPP,
         MAE, relative errors and normal angles next to the best constant map's,
         and the held-out re-render errors (docs/reconstruct.md).
     """
-    capture = evaluate_inputs(outdir, truth, variant)
+    capture = evaluate_inputs(outdir, truth, variant, force)
+    if out is not None:
+        check_report_path(out, outdir, capture.directory)
     select_variant(variant)
-    return evaluate_result(Path(outdir), capture, frame=frame, stage=stage, spp=spp,
-                           variant=variant)
+    scores = evaluate_result(Path(outdir), capture, frame=frame, stage=stage, spp=spp,
+                             variant=variant)
+    if out is not None:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out, json.dumps(scores, indent=2) + "\n", overwrite=True)
+    return scores

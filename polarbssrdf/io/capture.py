@@ -99,12 +99,16 @@ def read_json(path: str | os.PathLike):
 
 # --------------------------------------------------------------------------- image checks
 def check_image_channels(channels: Mapping[str, np.ndarray], expected: tuple[str, ...],
-                         image_size: tuple[int, int], kind: str, what: str) -> None:
+                         image_size: tuple[int, int], kind: str, what: str,
+                         allow_nan: bool = False) -> None:
     """Raise ``ValueError`` naming ``what`` unless ``channels`` fit the manifest.
 
     Checks: exactly the ``expected`` channel names, each a float32 array of
     ``(height, width)`` = ``image_size[::-1]``, finite, and for ``analyser``
-    images no value below ``-1e-6 * max``.
+    images no value below ``-1e-6 * max``. With ``allow_nan`` (how the
+    observation builder reads images) NaN pixels pass, as missing data that
+    drops only the texel-views touching them; infinities and negative radiance
+    are still errors.
     """
     names = set(channels)
     if names != set(expected):
@@ -125,11 +129,17 @@ def check_image_channels(channels: Mapping[str, np.ndarray], expected: tuple[str
                                          f"{values.shape[0]} (width x height); the camera's "
                                          f"image_size is {width} x {height}")
         finite = np.isfinite(values)
-        if not finite.all():
-            row, column = (int(i) for i in np.argwhere(~finite)[0])
+        everywhere = bool(finite.all())
+        bad = np.isinf(values) if allow_nan and not everywhere else ~finite
+        if not everywhere and bad.any():
+            row, column = (int(i) for i in np.argwhere(bad)[0])
             raise CaptureFormatError("", f"{what}: channel '{name}' has {int(np.isnan(values).sum())} "
                                          f"NaN and {int(np.isinf(values).sum())} infinite values "
                                          f"(first at row {row}, column {column})")
+        if not everywhere:
+            if not finite.any():
+                continue  # all NaN: no texel-view of this image survives, nothing to compare
+            values = values[finite]
         maximum = max(maximum, float(values.max()))
         if float(values.min()) < minimum:
             minimum, minimum_name = float(values.min()), name

@@ -10,8 +10,14 @@ and an existing file is only replaced on request.
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import io
 import json
 import os
+import sys
+import tempfile
+import threading
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -35,6 +41,8 @@ EXR_METADATA_SCHEMA_VERSION = 1
 ``{"schema_version": 1, "channels": [names in write order], "metadata": {...}}``."""
 
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
+
+_CAPTURE_LOCK = threading.Lock()
 
 
 def _as_float32(name: str, array) -> np.ndarray:
@@ -193,6 +201,48 @@ def write_exr(path: str | os.PathLike, channels: Mapping[str, np.ndarray],
                         overwrite=overwrite)
 
 
+def _flush_c_streams() -> None:
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):  # no C library to ask: nothing buffered there to lose
+        pass
+
+
+@contextlib.contextmanager
+def _output_captured():
+    """Collect what is printed meanwhile, by C++ code on file descriptors 1 and 2 and by
+    Python code on ``sys.stdout``/``sys.stderr``; yields a list that holds those lines once
+    the block has ended. The OpenEXR binding prints its diagnostics of a damaged file there
+    (a warning through Python's stdout, the library's errors on descriptor 2), around any
+    message of ours. Without usable descriptors only Python's output is collected."""
+    lines = []
+    python_output = io.StringIO()
+    with _CAPTURE_LOCK, contextlib.ExitStack() as stack:  # descriptors are process-wide
+        try:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            saved = [os.dup(1), os.dup(2)]
+        except (OSError, ValueError, AttributeError):
+            saved = None
+        stream = stack.enter_context(tempfile.TemporaryFile()) if saved else None
+        stack.enter_context(contextlib.redirect_stdout(python_output))
+        stack.enter_context(contextlib.redirect_stderr(python_output))
+        if saved:
+            for descriptor in (1, 2):
+                os.dup2(stream.fileno(), descriptor)
+        try:
+            yield lines
+        finally:
+            if saved:
+                _flush_c_streams()  # C++ streams write through C stdio, buffered off a tty
+                for descriptor, copy in zip((1, 2), saved):
+                    os.dup2(copy, descriptor)
+                    os.close(copy)
+                stream.seek(0)
+                lines += stream.read().decode("utf-8", "replace").splitlines()
+            lines += python_output.getvalue().splitlines()
+
+
 def _check_readable_exr(path: Path) -> None:
     """Raise a clear error unless ``path`` is an existing file that starts like an EXR."""
     if not path.exists():
@@ -252,19 +302,32 @@ def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
     FileNotFoundError
         The file does not exist.
     ValueError
-        The file is not an OpenEXR file, is damaged, or has metadata of a
-        newer schema version.
+        The file is not an OpenEXR file, is truncated or damaged (the message
+        names it and carries OpenEXR's diagnostic instead of printing it), or
+        has metadata of a newer schema version.
     """
     import OpenEXR
 
     path = Path(path)
     _check_readable_exr(path)
-    try:
-        exr = OpenEXR.File(str(path), separate_channels=True)
-        header = exr.header()
-        stored = {name: channel.pixels for name, channel in exr.channels().items()}
-    except RuntimeError as error:
-        raise ValueError(f"cannot read EXR file '{path}': {error}") from error
+    error = None
+    with _output_captured() as diagnostics:
+        try:
+            exr = OpenEXR.File(str(path), separate_channels=True)
+            header = exr.header()
+            stored = {name: channel.pixels for name, channel in exr.channels().items()}
+        except (RuntimeError, ValueError, OSError) as caught:  # damaged files raise any
+            error = caught
+    diagnostics = [line for line in diagnostics if line.strip()]
+    if error is not None:
+        # OpenEXR's own diagnostic says where the file breaks; its exception often does
+        # not ("Invalid part index '0': file has 0 parts")
+        located = [line for line in diagnostics if str(path) in line] or diagnostics
+        reason = located[0].replace(str(path), "").strip(" :") if located else str(error)
+        raise ValueError(f"'{path}' is not a readable OpenEXR file (truncated or damaged: "
+                         f"{reason})") from error
+    if diagnostics:  # a file that read with warnings, or another thread's output: pass on
+        print("\n".join(diagnostics), file=sys.stderr)
     metadata, order = _parse_metadata(path, header)
     if order is not None and sorted(order) == sorted(stored):
         stored = {name: stored[name] for name in order}

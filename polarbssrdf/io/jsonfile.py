@@ -1,8 +1,11 @@
-"""Reading JSON files with errors that name the file, and the line and column when malformed."""
+"""Reading JSON files with errors that name the file, and the line and column when malformed;
+checking the type of a decoded value (``check_boolean``, ``check_integer``, ...) with errors
+that name the key and the JSON type found."""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 
@@ -20,3 +23,64 @@ def read_json_file(path, what="file"):
     except json.JSONDecodeError as error:
         raise ValueError(f"{path}: not valid JSON ({error.msg} at line {error.lineno}, "
                          f"column {error.colno})") from None
+
+
+def json_type(value) -> str:
+    """The JSON type of a decoded value, as a user reads it: ``a string ("false")``,
+    ``a number (2.5)``, ``a boolean (true)``, ``null``, ``an object``, ``an array``."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return f"a boolean ({json.dumps(value)})"
+    if isinstance(value, int):
+        return f"an integer ({value})"
+    if isinstance(value, float):
+        return f"a number ({value!r})"
+    if isinstance(value, str):
+        text = json.dumps(value)
+        return f"a string ({text if len(text) <= 40 else text[:37] + '...'})"
+    if isinstance(value, dict):
+        return "an object"
+    if isinstance(value, (list, tuple)):
+        return "an array"
+    return f"a {type(value).__name__}"
+
+
+def check_boolean(value, name: str) -> bool:
+    """``value`` if it is a JSON boolean, else a ``ValueError`` naming ``name`` and the type.
+
+    Python's ``bool("false")`` is ``True``: a config flag given as a string must
+    be refused, not read as on.
+    """
+    if not isinstance(value, bool):
+        raise ValueError(f"{name} must be true or false (a JSON boolean), got {json_type(value)}")
+    return value
+
+
+def check_integer(value, name: str, minimum: int | None = None) -> int:
+    """``value`` if it is a JSON integer (not a boolean, not ``2.0``) >= ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, int) or (
+            minimum is not None and value < minimum):
+        bound = "" if minimum is None else f" >= {minimum}"
+        raise ValueError(f"{name} must be an integer{bound}, got {json_type(value)}")
+    return value
+
+
+def check_number(value, name: str, minimum=None, maximum=None) -> float:
+    """``value`` if it is a finite JSON number (an integer or not; not a boolean) in range."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {json_type(value)}")
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be <= {maximum}, got {value!r}")
+    return value
+
+
+def check_string(value, name: str, choices=None) -> str:
+    """``value`` if it is a JSON string (one of ``choices`` when given)."""
+    if not isinstance(value, str):
+        raise ValueError(f"{name} must be a string, got {json_type(value)}")
+    if choices is not None and value not in choices:
+        raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+    return value

@@ -6,7 +6,13 @@ import sys
 import time
 from pathlib import Path
 
-from polarbssrdf.inverse.results.directory import REPORT_FILE, check_report_path, read_result
+from polarbssrdf.inverse.results.directory import (
+    REPORT_FILE,
+    check_report_path,
+    check_result_capture,
+    read_result,
+)
+from polarbssrdf.io import load_capture
 from polarbssrdf.variants import DEFAULT_VARIANT, select_variant
 
 
@@ -28,6 +34,10 @@ def register(subparsers) -> None:
                         help="where to write (default: OUTDIR/report.html)")
     parser.add_argument("--variant", default=DEFAULT_VARIANT,
                         help="Mitsuba variant of the re-rendered view (default: %(default)s)")
+    parser.add_argument("--force", action="store_true",
+                        help="report with a capture that is not the result's (result.json "
+                             "records which capture the maps were fitted on; another one is "
+                             "refused with what differs)")
     parser.add_argument("--quiet", action="store_true", help="no progress messages")
     parser.set_defaults(run=run_report)
 
@@ -50,6 +60,14 @@ def run_report(args) -> int:
     if (result_dir / "result.json").is_file():
         capture_dir = args.capture if args.capture is not None else read_result(result_dir).capture
         check_report_path(out, result_dir, capture_dir)
+        capture = load_capture(capture_dir, check_images=False)
+        what = (f"--capture '{capture_dir}'" if args.capture is not None
+                else f"the capture '{capture_dir}' recorded in result.json")
+        differences = check_result_capture(result_dir, capture, what, force=args.force)
+        if differences:
+            print(f"polarbssrdf report: warning: {what} is not the result's capture "
+                  f"({'; '.join(differences)}); reporting with it anyway (--force)",
+                  file=sys.stderr)
     select_variant(args.variant)
     started = time.perf_counter()
 

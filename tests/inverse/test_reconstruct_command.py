@@ -6,9 +6,7 @@ epochs per run: the whole module takes well under a minute.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
 import json
 import shutil
 
@@ -17,19 +15,11 @@ import pytest
 
 import mitsuba as mi
 
-from polarbssrdf.cli import main
+from helpers import run_cli
 from polarbssrdf.errors import EXIT_INTERRUPTED, EXIT_USER_ERROR
 
 T = 32
 SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=4)
-
-
-def run_cli(*argv):
-    """``(exit status, stdout, stderr)`` of ``polarbssrdf ARGV`` run in this process."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = main([str(a) for a in argv])
-    return status, out.getvalue(), err.getvalue()
 
 
 def tree_hashes(directory):

@@ -142,7 +142,7 @@ def test_read_errors_name_the_problem(tmp_path):
     with pytest.raises(ValueError, match="text.exr' is not an OpenEXR file"):
         read_exr(tmp_path / "text.exr")
     (tmp_path / "truncated.exr").write_bytes(b"v/1\x01" + b"\x00" * 10)
-    with pytest.raises(ValueError, match="cannot read EXR file .*truncated.exr"):
+    with pytest.raises(ValueError, match="truncated.exr' is not a readable OpenEXR file"):
         read_exr(tmp_path / "truncated.exr")
     with pytest.raises(IsADirectoryError):
         read_exr(tmp_path)
@@ -205,3 +205,30 @@ def test_written_files_have_normal_permissions(tmp_path, channels):
     os.umask(umask)
     path = write_exr(tmp_path / "a.exr", channels)
     assert path.stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+@pytest.mark.parametrize("damage", ["truncated", "zeroed", "header only"])
+def test_a_damaged_exr_is_named_in_one_message_and_nothing_else_is_printed(tmp_path, capfd,
+                                                                           damage):
+    """OpenEXR raised "Invalid part index '0': file has 0 parts" and named the file only in
+    its own stderr lines (issue 21, item 8)."""
+    rng = np.random.default_rng(0)
+    path = write_exr(tmp_path / "good.exr", {"A": rng.random((64, 64)), "B": rng.random((64, 64))})
+    data = path.read_bytes()
+    broken = tmp_path / "broken.exr"
+    if damage == "truncated":
+        broken.write_bytes(data[:len(data) // 2])
+    elif damage == "zeroed":
+        broken.write_bytes(data[:400] + bytes(400) + data[800:])
+    else:
+        broken.write_bytes(data[:8])
+    capfd.readouterr()
+    with pytest.raises(ValueError) as caught:
+        read_exr(broken)
+    message = str(caught.value)
+    assert message.startswith(f"'{broken}' is not a readable OpenEXR file (truncated or "
+                              "damaged: ")
+    assert "\n" not in message and "part index" not in message
+    assert capfd.readouterr() == ("", "")
+    read_exr(path)  # the descriptors are back: a good file still reads, silently
+    assert capfd.readouterr() == ("", "")

@@ -2,15 +2,22 @@
 
 A run's config file carries them in its ``bio`` object (any field of
 :class:`BiophysicalConfig`, plus ``free_melanin``), read by :func:`bio_config`;
-unknown keys and out-of-range values are errors that name the key.
+unknown keys, values of the wrong JSON type (``"false"`` for a flag, ``12.0``
+for an integer) and out-of-range values are errors that name the key.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 from polarbssrdf.inverse.biophysical.model import PARAMETERS
+from polarbssrdf.io.jsonfile import (
+    check_boolean,
+    check_integer,
+    check_number,
+    check_string,
+    json_type,
+)
 from polarbssrdf.skin.inversion import BOUNDS as INVERSION_BOUNDS
 
 LEARNING_RATES = {"C_m": 3e-4, "beta_m": 3e-3, "C_h_out": 3e-4, "C_h_in": 2e-4}
@@ -90,51 +97,59 @@ class BiophysicalConfig:
             if unknown:
                 raise ValueError(f"smoothness: unknown map(s) {unknown}; known: {list(PARAMETERS)}")
         for name, weight in weights.items():
-            if isinstance(weight, bool) or not isinstance(weight, (int, float)) \
-                    or not math.isfinite(weight) or weight < 0:
-                raise ValueError(f"smoothness of {name} must be a finite number >= 0, got {weight!r}")
+            where = f"smoothness.{name}" if isinstance(value, dict) else "smoothness"
+            check_number(weight, where, minimum=0)
         return {n: float(w) for n, w in weights.items()}
 
     def __post_init__(self):
+        # JSON types first (errors name the key and the type found): a string or a
+        # boolean where a number belongs would otherwise pass or fail far from here
         for name in ("iterations", "rounds"):
-            value = getattr(self, name)
-            if int(value) != value or value < 0 or (name == "rounds" and value < 1):
-                raise ValueError(f"{name} must be a {'positive' if name == 'rounds' else 'non-negative'} "
-                                 f"integer, got {value!r}")
+            check_integer(getattr(self, name), name, minimum=1 if name == "rounds" else 0)
+        check_string(self.method, "method", METHODS)
         self.smoothness_weights()  # validates
         for name in ("kernel_tolerance", "albedo_noise", "start_texel_mm"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {list(METHODS)}, got {self.method!r}")
-        if not (isinstance(self.tolerance, (int, float)) and 0 <= self.tolerance < 1):
+            check_number(getattr(self, name), name, minimum=0)
+        check_number(self.tolerance, "tolerance", minimum=0)
+        if not self.tolerance < 1:
             raise ValueError(f"tolerance must be in [0, 1), got {self.tolerance!r}")
         if not self.albedo_noise > 0:
             raise ValueError("albedo_noise must be > 0")
-        if not 0 < self.final_lr_fraction <= 1:
+        check_number(self.final_lr_fraction, "final_lr_fraction", maximum=1)
+        if not 0 < self.final_lr_fraction:
             raise ValueError("final_lr_fraction must be in (0, 1]")
-        self.learning_rates = {**LEARNING_RATES, **self.learning_rates}
-        self.bounds = {**INVERSION_BOUNDS, **{k: tuple(v) for k, v in self.bounds.items()}}
+        for key in ("learning_rates", "bounds"):
+            if not isinstance(getattr(self, key), dict):
+                raise ValueError(f"{key} must be an object, got {json_type(getattr(self, key))}")
         for name in set(self.learning_rates) | set(self.bounds):
             if name not in PARAMETERS:
                 raise ValueError(f"unknown map {name!r}; known: {list(PARAMETERS)}")
+        for name, value in self.learning_rates.items():
+            check_number(value, f"learning_rates.{name}")
+            if not value > 0:
+                raise ValueError(f"learning rate of {name} must be > 0, got {value!r}")
+        for name, pair in self.bounds.items():
+            if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+                raise ValueError(f"bounds.{name} must be [low, high], got {json_type(pair)}")
+            for value in pair:
+                check_number(value, f"bounds.{name}")
+        self.learning_rates = {**LEARNING_RATES, **self.learning_rates}
+        self.bounds = {**INVERSION_BOUNDS, **{k: tuple(v) for k, v in self.bounds.items()}}
         for name, (low, high) in self.bounds.items():
             if not (0.0 <= low < high <= 1.0):
                 raise ValueError(f"bounds of {name} must satisfy 0 <= low < high <= 1, got {(low, high)}")
-        for name, value in self.learning_rates.items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"learning rate of {name} must be > 0, got {value!r}")
-        if not (self.thickness_mm > 0 and math.isfinite(self.thickness_mm)):
+        check_number(self.thickness_mm, "thickness_mm")
+        if not self.thickness_mm > 0:
             raise ValueError("thickness_mm must be > 0")
-        if not (math.isfinite(self.eta) and self.eta > 1):
+        check_number(self.eta, "eta")
+        if not self.eta > 1:
             raise ValueError("eta must be > 1")
 
 
 def bio_config(settings):
     """:class:`BiophysicalConfig` from a config's ``bio`` object (keys of the dataclass)."""
     settings = dict(settings or {})
-    free = bool(settings.pop("free_melanin", False))
+    free = check_boolean(settings.pop("free_melanin", False), "free_melanin")
     known = {f.name for f in dataclasses.fields(BiophysicalConfig)}
     unknown = sorted(set(settings) - known)
     if unknown:

@@ -51,7 +51,7 @@ import json
 import logging
 import os
 import shutil
-import warnings
+import sys
 from pathlib import Path
 
 import mitsuba as mi
@@ -74,8 +74,9 @@ from polarbssrdf.inverse.observations.store import (
     create_field_arrays,
     field_shape,
 )
-from polarbssrdf.io.capture import MANIFEST_NAME, Capture, load_capture
+from polarbssrdf.io.capture import MANIFEST_NAME, Capture, check_image_channels, load_capture
 from polarbssrdf.io.exr import read_exr
+from polarbssrdf.io.identity import DIGEST_NAME, file_digest
 from polarbssrdf.variants import ensure_jit_variant
 
 __all__ = [
@@ -273,23 +274,20 @@ def analyser_images(capture, record) -> list[np.ndarray]:
 
     Radiance for both kinds: raw mosaics are calibrated (``radiance_per_dn``,
     ``black_level_dn``; saturated pixels NaN) and then demosaicked; a raw
-    record without calibration raises :class:`ObservationError`. Read without
-    the capture's finiteness check, so that NaN pixels of real captures drop
-    texel-views instead of the whole image.
+    record without calibration raises :class:`ObservationError`. The pixels are
+    checked as :func:`~polarbssrdf.io.capture.load_capture` checks them, with its
+    messages (:func:`~polarbssrdf.io.capture.check_image_channels`), except that
+    NaN pixels of real captures pass: they drop texel-views, not the whole image.
     """
 
     manifest = capture.manifest
     camera = manifest.camera(record.camera)
     path = capture.directory / record.path
     channels, _ = read_exr(path)
-    expected = manifest.expected_channels(record)
-    missing = [name for name in expected if name not in channels]
-    if missing:
-        raise ObservationError(f"'{path}': missing channels {missing} of a {record.kind} image")
-    for name in expected:
-        if channels[name].shape != (camera.height, camera.width):
-            raise ObservationError(f"'{path}': channel '{name}' is {channels[name].shape[::-1]} "
-                                   f"(width x height), camera {camera.name} is {camera.image_size}")
+    # the loader's checks (channel set, size, no infinity, no negative radiance) on the
+    # pixels read here, so a run fits only what load_capture(check_images=True) accepts
+    check_image_channels(channels, manifest.expected_channels(record), camera.image_size,
+                         record.kind, f"'{path}'", allow_nan=True)
     if record.kind == "raw" and not record.calibrated:
         raise ObservationError(f"'{path}': raw image without a radiometric calibration: the "
                                "capture lacks radiance_per_dn (and black_level_dn) for it in "
@@ -345,19 +343,16 @@ def _frame_records(capture, frame_index: int, exclude_cameras) -> list:
     return records
 
 
-def _file_stamp(path: Path) -> list:
-    stat = path.stat()
-    return [stat.st_size, stat.st_mtime_ns]
-
-
 def observation_fingerprint(capture, frame_index, texture_size, *, exclude_cameras=(),
                             block_size=32, min_cosine=0.1) -> tuple[str, dict]:
     """``(sha256 hex, inputs)`` of everything a store depends on.
 
-    The inputs: the content hash of ``capture.json``, size and modification
-    time of the mesh and of every image of the frame, the texture size,
-    frame, excluded cameras, thresholds, block size and the store format
-    version. Any change gives another fingerprint, hence a rebuild.
+    The inputs: the content hash of ``capture.json``, of the mesh and of every
+    image of the frame (:func:`polarbssrdf.io.identity.file_digest`: the bytes,
+    not the size and modification time, which ``cp -p`` or a re-export of an
+    uncompressed EXR keep), the texture size, frame, excluded cameras,
+    thresholds, block size and the store format version. Any change gives
+    another fingerprint, hence a rebuild; the store records the inputs.
     """
 
     capture = _as_capture(capture)
@@ -366,9 +361,10 @@ def observation_fingerprint(capture, frame_index, texture_size, *, exclude_camer
     inputs = {
         "format_version": FORMAT_VERSION,
         "capture_json_sha256": hashlib.sha256(manifest_bytes).hexdigest(),
+        "digest": DIGEST_NAME,
         "mesh": (None if capture.mesh_path is None or not capture.mesh_path.is_file()
-                 else [capture.manifest.mesh, *_file_stamp(capture.mesh_path)]),
-        "images": [[record.path, *_file_stamp(capture.directory / record.path)]
+                 else [capture.manifest.mesh, file_digest(capture.mesh_path)]),
+        "images": [[record.path, file_digest(capture.directory / record.path)]
                    for record in frame.images],
         "texture_size": int(texture_size),
         "frame": int(frame_index),
@@ -683,8 +679,12 @@ def build_observations(capture, frame_index, texture_size, path, *, exclude_came
             statistics.append(stats)
             if len(observed) == 0:
                 reason = _why_nothing(stats)
-                warnings.warn(f"camera {record.camera!r} (light {record.light!r}) sees no texel "
-                              f"of frame {frame_index}: {reason}; skipping it", stacklevel=2)
+                # one line of ours (a UserWarning would print its source line too); tqdm.write
+                # keeps an open progress bar intact
+                message = (f"camera {record.camera!r} (light {record.light!r}) sees no texel "
+                           f"of frame {frame_index}: {reason}; skipping it")
+                logger.warning(message)
+                tqdm.write(f"polarbssrdf: warning: {message}", file=sys.stderr)
                 skipped.append({"camera": record.camera, "light": record.light,
                                 "reason": reason})
                 continue

@@ -6,15 +6,25 @@
 (``reconstruct --config``, read by :func:`polarbssrdf.inverse.config.load_static_config`):
 a JSON object with any subset of the keys below; nested ``weights``,
 ``bounds``, ``initial`` and ``learning_rates`` objects override only the
-keys they name. Unknown keys and out-of-range values are errors that name
-the key. The ``bio`` object is carried for the biophysical stage, which
-checks it (:func:`polarbssrdf.inverse.biophysical.config.bio_config`).
+keys they name. Every value must have its JSON type (a flag ``true`` or
+``false``, not ``"false"``; an integer ``30``, not ``30.0``); unknown keys,
+wrong types and out-of-range values are errors that name the key. The
+``bio`` object is carried for the biophysical stage, which checks it
+(:func:`polarbssrdf.inverse.biophysical.config.bio_config`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+
+from polarbssrdf.io.jsonfile import (
+    check_boolean,
+    check_integer,
+    check_number,
+    check_string,
+    json_type,
+)
 
 STATIC_WEIGHTS = {
     "psi": 0.002, "sss": 1.0, "s": 1.0, "phi": 1.0,  # eq. 26
@@ -163,6 +173,11 @@ class StaticConfig:
     bio: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
+        # JSON types first: Python's bool("false") is True, so a flag given as a string
+        # would silently turn the option on
+        for field in dataclasses.fields(self):
+            if field.type == "bool":
+                check_boolean(getattr(self, field.name), f"config: {field.name}")
         _positive_int(self.iterations, "iterations", minimum=0)
         _positive_int(self.patch_size, "patch_size", minimum=8)
         _positive_int(self.min_steps_per_epoch, "min_steps_per_epoch")
@@ -176,9 +191,10 @@ class StaticConfig:
         _known_keys(self.bounds, BOUNDS, "bounds")
         for name, pair in self.bounds.items():
             if (not isinstance(pair, (list, tuple)) or len(pair) != 2
-                    or not all(isinstance(v, (int, float)) for v in pair) or not pair[0] < pair[1]):
-                raise ValueError(f"config: bounds.{name} must be [low, high] with low < high, "
-                                 f"got {pair!r}")
+                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                               and math.isfinite(v) for v in pair) or not pair[0] < pair[1]):
+                raise ValueError(f"config: bounds.{name} must be [low, high] (two numbers) with "
+                                 f"low < high, got {pair!r}")
         self.bounds = {name: (float(low), float(high)) for name, (low, high) in self.bounds.items()}
         if self.bounds["eta"][0] <= 1.0:
             raise ValueError("config: bounds.eta must stay above 1 (a dielectric)")
@@ -191,9 +207,7 @@ class StaticConfig:
             if not low <= value <= high:
                 raise ValueError(f"config: initial.{name} = {value} is outside bounds.{name} "
                                  f"[{low}, {high}]")
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(f"config: optimizer must be one of {list(OPTIMIZERS)}, "
-                             f"got {self.optimizer!r}")
+        check_string(self.optimizer, "config: optimizer", OPTIMIZERS)
         _finite(self.gradient_clip, "gradient_clip", minimum=0.0)
         _finite(self.regularization_scale, "regularization_scale", minimum=0.0)
         _finite(self.final_learning_rate, "final_learning_rate", minimum=1e-6, maximum=1.0)
@@ -202,10 +216,10 @@ class StaticConfig:
         _finite(self.residual_limit, "residual_limit", minimum=0.0)
         _finite(self.photometric_noise, "photometric_noise", minimum=1e-6)
         if not isinstance(self.dynamic, dict):
-            raise ValueError(f"config: dynamic must be an object, got {self.dynamic!r}")
+            raise ValueError(f"config: dynamic must be an object, got {json_type(self.dynamic)}")
         parse_dynamic(self.dynamic, self.iterations)
         if not isinstance(self.bio, dict):
-            raise ValueError(f"config: bio must be an object, got {self.bio!r}")
+            raise ValueError(f"config: bio must be an object, got {json_type(self.bio)}")
 
     def to_json(self) -> dict:
         data = dataclasses.asdict(self)
@@ -250,41 +264,32 @@ def parse_dynamic(overrides, default_iterations=None):
     weights = dict(DYNAMIC_WEIGHTS)
     extra = overrides.pop("weights", {}) or {}
     if not isinstance(extra, dict):
-        raise ValueError(f"config: dynamic.weights must be an object, got {extra!r}")
+        raise ValueError(f"config: dynamic.weights must be an object, got {json_type(extra)}")
     unknown = sorted(set(extra) - set(DYNAMIC_WEIGHTS))
     if unknown:
         raise ValueError(f"config: unknown dynamic.weights key(s) {unknown}; known: "
                          f"{sorted(DYNAMIC_WEIGHTS)}")
     for name, value in extra.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
-            raise ValueError(f"config: dynamic.weights.{name} must be a number >= 0, got {value!r}")
-        weights[name] = float(value)
+        weights[name] = float(check_number(value, f"config: dynamic.weights.{name}", minimum=0))
     iterations = overrides.pop("iterations", DEFAULT_DYNAMIC_ITERATIONS)
     if overrides:
         raise ValueError(f"config: unknown dynamic key(s) {sorted(overrides)}; known: "
                          "['iterations', 'weights']")
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
-        raise ValueError(f"config: dynamic.iterations must be an integer >= 0, got {iterations!r}")
+    check_integer(iterations, "config: dynamic.iterations", minimum=0)
     return iterations, weights
 
 
 def _positive_int(value, name, minimum=1):
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"config: {name} must be an integer >= {minimum}, got {value!r}")
+    check_integer(value, f"config: {name}", minimum)
 
 
 def _finite(value, name, minimum=None, maximum=None):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ValueError(f"config: {name} must be a finite number, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise ValueError(f"config: {name} must be >= {minimum}, got {value!r}")
-    if maximum is not None and value > maximum:
-        raise ValueError(f"config: {name} must be <= {maximum}, got {value!r}")
+    check_number(value, f"config: {name}", minimum, maximum)
 
 
 def _known_keys(values, table, name):
     if not isinstance(values, dict):
-        raise ValueError(f"config: {name} must be an object, got {values!r}")
+        raise ValueError(f"config: {name} must be an object, got {json_type(values)}")
     unknown = sorted(set(values) - set(table))
     if unknown:
         raise ValueError(f"config: unknown {name} key(s) {unknown}; known: {sorted(table)}")
@@ -306,7 +311,7 @@ def merged_config(overrides=None, **changes) -> StaticConfig:
         for key, value in source.items():
             if key in ("weights", "bounds", "initial", "learning_rates", "dynamic", "bio"):
                 if not isinstance(value, dict):
-                    raise ValueError(f"config: {key} must be an object, got {value!r}")
+                    raise ValueError(f"config: {key} must be an object, got {json_type(value)}")
                 merged = dict(data.get(key) or getattr(StaticConfig(), key))
                 merged.update(value)
                 data[key] = merged

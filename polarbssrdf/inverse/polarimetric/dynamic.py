@@ -36,10 +36,12 @@ from polarbssrdf.inverse.polarimetric.config import merged_config, parse_dynamic
 from polarbssrdf.inverse.polarimetric.fit import initial_parameters, run_polarimetric_fit
 from polarbssrdf.inverse.polarimetric.optimize import MapParameters
 from polarbssrdf.inverse.results.directory import (
+    OBSERVATIONS_DIR,
     RESULT_FILE,
     read_stage_maps,
     register_map,
     stage_map_path,
+    write_confidence,
     write_metrics,
 )
 from polarbssrdf.io import load_capture
@@ -96,7 +98,7 @@ def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(),
     if frame not in [f.index for f in capture.manifest.frames]:
         raise ValueError(f"capture {capture_dir} has no frame {frame}")
     store = load_or_build_observations(
-        capture, frame, texture_size, outdir / "observations" / f"f{frame:04d}.zarr",
+        capture, frame, texture_size, outdir / OBSERVATIONS_DIR / f"f{frame:04d}.zarr",
         exclude_cameras=tuple(holdout), progress=progress)
     missing = [f"rho_sss.{band}" for band in store.bands if f"rho_sss.{band}" not in static]
     if missing:
@@ -119,6 +121,7 @@ def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(),
     path = outdir / stage_map_path(STAGE, frame)
     metadata = {"stage": STAGE, "frame": int(frame), "config": config.to_json(),
                 "weights": weights, "texel_views": len(store), "history": result.history,
+                "confidence": result.confidence,
                 "seconds": round(time.perf_counter() - started, 3)}
     write_exr(path, result.maps, metadata=metadata, overwrite=True)
     dr.flush_malloc_cache()
@@ -148,7 +151,8 @@ def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), stat
 
     Frames whose map file exists are skipped when ``resume``; ``label`` names the stage
     on the progress bar. Returns
-    ``{"done": [frames], "skipped": [frames], "failed": {frame: reason}, "seconds"}``.
+    ``{"done": [frames], "skipped": [frames], "failed": {frame: reason}, "seconds",
+    "confidence": {frame: confidence summary}}``.
     """
     started = time.perf_counter()
     outdir = Path(outdir)
@@ -164,11 +168,15 @@ def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), stat
                      threads)
     records, failures = run_frames(task, todo, workers=workers, scheduler=scheduler,
                                    progress=progress, description=label)
-    metrics = {}
+    metrics, confidence = {}, {}
     for frame in sorted(records) + skipped:
         channels, metadata = read_exr(outdir / stage_map_path(STAGE, frame))
         register_map(outdir, STAGE, frame, channels)
         metrics[str(frame)] = (metadata or {}).get("history", [])
+        if (metadata or {}).get("confidence"):
+            confidence[frame] = metadata["confidence"]
     write_metrics(outdir, STAGE, metrics)
+    write_confidence(outdir, STAGE, confidence)
     return {"done": sorted(records), "skipped": skipped, "failed": failures,
-            "seconds": round(time.perf_counter() - started, 3), "records": records}
+            "seconds": round(time.perf_counter() - started, 3), "records": records,
+            "confidence": confidence}

@@ -22,7 +22,10 @@ Confidence: ``min(1, n / 8)`` for a texel with ``n`` usable texel-views
 below ``min_views`` and 0 where the fitted model leaves residuals far above
 the typical texel's (:func:`texel_confidence`); confidence-0 texels (and
 texels off the mesh) take the values of their confident neighbours
-(normalized Gaussian fill), never NaN.
+(normalized Gaussian fill), never NaN. The share of the surface that is
+confident is returned (:func:`confidence_summary`); below
+:data:`LOW_CONFIDENT_FRACTION` the stages warn, and a fit with no confident
+texel fails (:class:`NoConfidentTexelError`).
 
 Specular peak angle (``specular_peak_angle``, degrees): between the fitted
 normal and the closest half vector among the texel's usable texel-views.
@@ -63,14 +66,25 @@ from polarbssrdf.io.atomic import atomic_write_bytes
 FULL_CONFIDENCE_VIEWS = 8
 INITIAL_RHO_SSS = 0.5
 
+LOW_CONFIDENT_FRACTION = 0.5
+"""Below this share of the surface (texels on the mesh) with confidence > 0 a stage warns:
+most of its maps are then not measured but filled in from neighbours (a capture whose
+cameras see less than half of the object, e.g. 3 views of a face, is below it)."""
+
+
+class NoConfidentTexelError(ValueError):
+    """A polarimetric fit in which no texel of the surface is confident: no map was measured."""
+
 
 @dataclasses.dataclass
 class StageResult:
-    """What a polarimetric stage returns: the maps (channel -> (T, T)) and the loss history."""
+    """What a polarimetric stage returns: the maps (channel -> (T, T)), the loss history and
+    :func:`confidence_summary`."""
 
     maps: dict
     history: list
     path: Path | None = None
+    confidence: dict | None = None
 
 
 def initial_parameters(config, texture_size, n_bands, start=None):
@@ -264,6 +278,33 @@ def texel_confidence(counts, chi_square, valid, config):
     return np.where(valid, confidence, 0.0)
 
 
+def confidence_summary(confidence, valid) -> dict:
+    """``confident_fraction`` (of the texels on the mesh), ``confident_texels``,
+    ``surface_texels`` of a confidence map."""
+    surface = int(np.count_nonzero(valid))
+    confident = int(np.count_nonzero((confidence > 0) & valid))
+    return {"confident_fraction": round(confident / surface, 4) if surface else 0.0,
+            "confident_texels": confident, "surface_texels": surface}
+
+
+def check_some_confident(summary, statistics, valid, config) -> None:
+    """Raise :class:`NoConfidentTexelError`, with the reason, when no texel is confident."""
+    if summary["confident_texels"]:
+        return
+    counts = statistics.counts[valid] if np.any(valid) else np.zeros(1)
+    enough = int(np.count_nonzero(counts >= config.min_views))
+    if enough == 0:
+        why = (f"no texel has the {config.min_views} usable texel-views min_views asks for (at "
+               f"most {int(counts.max())}): too few cameras see each texel with its light, or "
+               "min_cosine is too high")
+    else:
+        why = (f"the {enough} texels with {config.min_views} or more usable texel-views all "
+               f"leave residuals above residual_limit = {config.residual_limit:g} times the "
+               "median texel's")
+    raise NoConfidentTexelError(f"no texel of the surface is confident ({why}): every map "
+                                "value would be a guess")
+
+
 def fill_from_confident(values, confident, sigma=2.0):
     """Replace non-confident texels by the Gaussian-weighted mean of confident ones (growing)."""
 
@@ -307,5 +348,8 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
     statistics = texel_statistics(params, cache, patches, config)
     confidence = texel_confidence(statistics.counts, statistics.chi_square, atlas.valid, config)
+    summary = confidence_summary(confidence, atlas.valid)
+    check_some_confident(summary, statistics, atlas.valid, config)
     return StageResult(final_maps(params, atlas, confidence, store.bands,
-                                  statistics.specular_peak_angle), history)
+                                  statistics.specular_peak_angle), history,
+                       confidence=summary)

@@ -21,7 +21,12 @@ import mitsuba as mi
 from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.inverse.observations.build import load_or_build_observations
 from polarbssrdf.inverse.polarimetric.fit import run_polarimetric_fit
-from polarbssrdf.inverse.results.directory import write_metrics, write_stage_maps
+from polarbssrdf.inverse.results.directory import (
+    OBSERVATIONS_DIR,
+    write_confidence,
+    write_metrics,
+    write_stage_maps,
+)
 from polarbssrdf.inverse.results.previews import write_map_previews
 
 STAGE = "static"
@@ -40,7 +45,7 @@ def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=
     outdir = Path(outdir)
     start = time.perf_counter()
     store = load_or_build_observations(
-        capture, frame, texture_size, outdir / "observations" / f"f{frame:04d}.zarr",
+        capture, frame, texture_size, outdir / OBSERVATIONS_DIR / f"f{frame:04d}.zarr",
         exclude_cameras=tuple(holdout), progress=progress)
     atlas = texel_atlas(to_mitsuba(capture.load_mesh()), texture_size)
     stage_dir = outdir / STAGE
@@ -48,9 +53,11 @@ def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=
     result = run_polarimetric_fit(store, atlas, config, checkpoint=stage_dir / CHECKPOINT_FILE,
                                   progress=progress, description=label)
     metadata = {"config": config.to_json(), "texel_views": len(store),
-                "seconds": round(time.perf_counter() - start, 3), "variant": mi.variant()}
+                "seconds": round(time.perf_counter() - start, 3), "variant": mi.variant(),
+                "confidence": result.confidence}
     result.path = write_stage_maps(outdir, STAGE, frame, result.maps, metadata)
     write_map_previews(result.maps, stage_dir / "previews", f"f{frame:04d}")
     write_metrics(outdir, STAGE, result.history)
+    write_confidence(outdir, STAGE, {frame: result.confidence})
     dr.flush_malloc_cache()
     return result

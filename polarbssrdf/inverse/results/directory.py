@@ -13,7 +13,10 @@ like and every later stage reads the earlier ones from disk::
 
 ``result.json`` lists ``{frame, stage, path, channels}`` per map file and
 is rewritten atomically each time a map is added, so it only ever lists
-complete files.
+complete files. Its ``capture_identity``
+(:func:`polarbssrdf.io.identity.capture_identity`) says which capture the maps
+were fitted on, whatever its path: :func:`check_result_capture` refuses
+another one.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from pathlib import Path
 from polarbssrdf.errors import CommandError
 from polarbssrdf.io.atomic import atomic_write_text
 from polarbssrdf.io.exr import read_exr, write_exr
+from polarbssrdf.io.identity import capture_identity, identity_differences
 from polarbssrdf.io.jsonfile import read_json_file
 from polarbssrdf.io.truth import DEFAULT_TRUTH_UNITS, TEXTURE_CONVENTION
 
@@ -37,7 +41,8 @@ RESULT_FILE = "result.json"
 STAGES = ("static", "dynamic", "bio")
 """The stages whose maps a result holds, in the order they run (each reads the earlier ones)."""
 METRICS_FILE = "metrics.json"
-"""``OUTDIR/metrics.json``: the loss history of every stage (``{stage: history}``)."""
+"""``OUTDIR/metrics.json``: the loss history of every stage (``{stage: history}``), and under
+``confidence`` the confident share of the surface per polarimetric stage and frame."""
 TIMINGS_FILE = "timings.json"
 """``OUTDIR/timings.json``: wall seconds of the last run of each stage."""
 REPORT_FILE = "report.html"
@@ -63,12 +68,18 @@ class ResultManifest:
     maps: list = dataclasses.field(default_factory=list)
     settings: dict = dataclasses.field(default_factory=dict)
     texture_convention: str = TEXTURE_CONVENTION
+    capture_identity: dict | None = None
+    """:func:`polarbssrdf.io.identity.capture_identity` of the capture at the run's start
+    (None in results written before it was recorded)."""
 
     def to_json(self):
-        return {"schema": RESULT_SCHEMA, "schema_version": RESULT_SCHEMA_VERSION,
+        data = {"schema": RESULT_SCHEMA, "schema_version": RESULT_SCHEMA_VERSION,
                 "capture": self.capture, "texture_size": self.texture_size,
                 "texture_convention": self.texture_convention, "units": dict(self.units),
                 "settings": self.settings, "maps": list(self.maps)}
+        if self.capture_identity is not None:
+            data["capture_identity"] = self.capture_identity
+        return data
 
     @classmethod
     def from_json(cls, data, where):
@@ -84,7 +95,8 @@ class ResultManifest:
         return cls(capture=data["capture"], texture_size=data["texture_size"],
                    units=data["units"], maps=list(data["maps"]),
                    settings=data.get("settings", {}),
-                   texture_convention=data.get("texture_convention", TEXTURE_CONVENTION))
+                   texture_convention=data.get("texture_convention", TEXTURE_CONVENTION),
+                   capture_identity=data.get("capture_identity"))
 
     def record(self, stage, frame):
         for record in self.maps:
@@ -159,12 +171,14 @@ def continue_result_directory(outdir, capture_directory, texture_size):
 
 
 def prepare_result_directory(outdir, capture_directory, texture_size, settings, *, resume=False,
-                             overwrite=False):
+                             overwrite=False, identity=None):
     """Create ``outdir`` for a run, or check that it holds the same run for ``resume``.
 
     Refuses a non-empty directory unless ``resume`` (same capture and
     settings: the differing ones are named) or ``overwrite``; refuses to
-    write inside the capture. Returns the :class:`ResultManifest`.
+    write inside the capture. A new ``result.json`` records ``identity``
+    (:func:`polarbssrdf.io.identity.capture_identity`). Returns the
+    :class:`ResultManifest`.
     """
     outdir = Path(outdir).resolve()
     capture_directory = Path(capture_directory).resolve()
@@ -192,9 +206,36 @@ def prepare_result_directory(outdir, capture_directory, texture_size, settings, 
         _remove_run_files(outdir)
     units = dict(RESULT_UNITS)
     manifest = ResultManifest(capture=str(capture_directory), texture_size=int(texture_size),
-                              units=units, settings=settings)
+                              units=units, settings=settings, capture_identity=identity)
     write_result(outdir, manifest)
     return manifest
+
+
+def capture_differences(manifest: ResultManifest, capture) -> list[str]:
+    """How ``capture`` differs from the one ``manifest``'s run was fitted on (empty: it is
+    that capture, or the result predates recorded identities)."""
+    recorded = manifest.capture_identity
+    if not recorded:
+        return []
+    frame = recorded.get("frame", 0)
+    if frame not in [f.index for f in capture.manifest.frames]:
+        return [f"it has no frame {frame}, the frame whose images identify the result's capture"]
+    return identity_differences(recorded, capture_identity(capture, frame))
+
+
+def check_result_capture(outdir, capture, what, *, force=False) -> list[str]:
+    """Refuse (:class:`CommandError`) unless ``capture`` is the result's capture.
+
+    ``what`` names the capture for the message, e.g. ``"--truth 'face'"``. With
+    ``force`` the differences are returned instead (the caller says it goes on).
+    """
+    manifest = read_result(outdir)
+    differences = capture_differences(manifest, capture)
+    if differences and not force:
+        raise CommandError(f"{what} is not the capture the result in '{outdir}' was fitted on "
+                           f"('{manifest.capture}'): {'; '.join(differences)}; pass --force to "
+                           "use it anyway")
+    return differences
 
 
 def _settings_differences(manifest, capture, texture_size, settings):
@@ -210,10 +251,12 @@ def _settings_differences(manifest, capture, texture_size, settings):
     return differences
 
 
-RUN_ENTRIES = (RESULT_FILE, *STAGES, METRICS_FILE, TIMINGS_FILE,
-               REPORT_FILE)
-"""What a run writes in OUTDIR; ``--overwrite`` removes only these (the observation cache stays:
-its fingerprint decides whether it is reused)."""
+OBSERVATIONS_DIR = "observations"
+"""``OUTDIR/observations/f####.zarr``: the observation cache of each frame."""
+
+RUN_ENTRIES = (RESULT_FILE, *STAGES, METRICS_FILE, TIMINGS_FILE, REPORT_FILE, OBSERVATIONS_DIR)
+"""What a run writes in OUTDIR; ``--overwrite`` removes only these, the observation cache
+too: starting over must not depend on the cache's fingerprint being right."""
 
 
 def _remove_run_files(outdir):
@@ -230,6 +273,15 @@ def write_metrics(outdir, stage, history):
     path = Path(outdir) / METRICS_FILE
     metrics = json.loads(path.read_text()) if path.is_file() else {}
     metrics[stage] = history
+    atomic_write_text(path, json.dumps(metrics, indent=1) + "\n", overwrite=True)
+
+
+def write_confidence(outdir, stage, summaries) -> None:
+    """Record ``{frame: confidence summary}`` of a stage under ``confidence`` in
+    ``OUTDIR/metrics.json`` (atomically): what share of the surface was measured."""
+    path = Path(outdir) / METRICS_FILE
+    metrics = json.loads(path.read_text()) if path.is_file() else {}
+    metrics.setdefault("confidence", {})[stage] = {str(k): v for k, v in summaries.items()}
     atomic_write_text(path, json.dumps(metrics, indent=1) + "\n", overwrite=True)
 
 

@@ -7,8 +7,6 @@ known exactly; no optimization runs.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import shutil
 
@@ -17,19 +15,12 @@ import pytest
 
 import mitsuba as mi
 
-from polarbssrdf.cli import main
+from helpers import run_cli
 from polarbssrdf.errors import EXIT_USER_ERROR
 
 T = 32
 SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=4)
 RESULT_CHANNELS = ("eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement")
-
-
-def run_cli(*argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = main([str(a) for a in argv])
-    return status, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
