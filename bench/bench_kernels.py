@@ -15,7 +15,7 @@ and prints
 * the same per test file.
 
     .venv/bin/python bench/bench_kernels.py [--runs 2] [--top 25] [--keep DIR] [--repo DIR]
-                                            [-- PYTEST ARGS]
+                                            [--home DIR] [-- PYTEST ARGS]
 
 ``--repo`` runs another checkout's tests with its own ``.venv`` (to measure a
 branch against ``main``). The per-test records (JSON lines) stay in ``--keep``.
@@ -80,13 +80,16 @@ def main(argv=None):
     parser.add_argument("--top", type=int, default=25, help="rows of the per-test table")
     parser.add_argument("--keep", type=Path, default=None, help="directory for the per-test records")
     parser.add_argument("--repo", type=Path, default=BENCH_DIR.parent, help="checkout whose tests to run")
+    parser.add_argument("--home", type=Path, default=None,
+                        help="run in this HOME (its ~/.drjit as it is: the first run is then warm)")
     args = parser.parse_args(argv)
     keep = args.keep or Path(tempfile.mkdtemp(prefix="kernels-"))
     keep.mkdir(parents=True, exist_ok=True)
-    home = Path(tempfile.mkdtemp(prefix="kernels-home-"))
+    home = args.home or Path(tempfile.mkdtemp(prefix="kernels-home-"))
+    labels = (["cold"] if args.home is None else []) + ["warm"] + [f"warm{i}" for i in range(2, args.runs + 1)]
     runs = []
     for index in range(args.runs):
-        label = "cold" if index == 0 else f"warm{index if args.runs > 2 else ''}"
+        label = labels[index]
         out = keep / f"{label}.jsonl"
         out.unlink(missing_ok=True)
         print(f"{label} run of {args.repo} (HOME={home}) ...", flush=True)

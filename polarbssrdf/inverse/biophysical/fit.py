@@ -206,8 +206,9 @@ class FitLoss:
         # scalars that vary with the data and the config enter the kernels as inputs, not
         # literals, so that other faces and configs reuse the compiled kernels
         self._norm_jit = dr.opaque(Float, self.norm)
-        self._smoothness_jit = {name: (dr.opaque(Float, weight * self.pair_norm),
-                                       dr.opaque(Float, 1.0 / (config.bounds[name][1] - config.bounds[name][0])))
+        self._pair_norm_jit = dr.opaque(Float, self.pair_norm)
+        self._smoothness_jit = {name: (dr.opaque(Float, weight),
+                                       dr.opaque(Float, config.bounds[name][1] - config.bounds[name][0]))
                                 for name, weight in self.smoothness.items() if weight > 0}
         # what the Gauss-Newton curvature needs: per band and texel the weight of the
         # squared residual
@@ -228,12 +229,12 @@ class FitLoss:
             loss += dr.sum(r * r) * self._norm_jit
         for name in PARAMETERS:
             if name in self._smoothness_jit:
-                weight, inverse_range = self._smoothness_jit[name]
+                weight, span = self._smoothness_jit[name]
                 x = params[name]
                 # the map's gradient in bounds ranges per mm, whatever the texel size
                 slope = ((dr.gather(Float, x, self.pairs[0]) - dr.gather(Float, x, self.pairs[1]))
-                         * self.inverse_distance * inverse_range)
-                loss += weight * dr.sum(slope * slope)
+                         * self.inverse_distance / span)
+                loss += weight * dr.sum(slope * slope) * self._pair_norm_jit
         return loss
 
 

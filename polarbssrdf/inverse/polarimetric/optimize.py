@@ -530,15 +530,19 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True, different
     count = dr.maximum(dr.detach(dr.sum(weight)), 1.0)
     terms = {name: dr.sum(term) / (count * len(prepared.observed))
              for name, term in per_view.items()}
-    total = sum(float(weights.get(name, 0.0)) * terms[name] for name in terms)
+    Float = type(count)
+    # the weights (per stage and config) and the regularizers' values (NumPy, new at every
+    # patch) enter as kernel inputs: as literals each patch compiled a kernel of its own
+    total = sum(dr.opaque(Float, float(weights[name])) * terms[name]
+                for name in terms if float(weights.get(name, 0.0)) != 0.0)
     windows = {name: np.array(values) for name, values in window.items()}
     gradients = {}
     for extra_terms, extra_gradients in (
             window_regularizers(windows, prepared, weights, params.optimized),
             temporal_terms(params, windows, prepared, weights)):
         terms.update(extra_terms)
-        total = total + sum(float(weights.get(name, 0.0)) * value
-                            for name, value in extra_terms.items())
+        total = total + dr.opaque(Float, sum(float(weights.get(name, 0.0)) * value
+                                             for name, value in extra_terms.items()))
         for name, gradient in extra_gradients.items():
             gradients[name] = gradients.get(name, 0.0) + gradient
     return PatchLoss(terms, total, weight, leaves, gradients)
