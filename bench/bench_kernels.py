@@ -18,7 +18,11 @@ and prints
                                             [--home DIR] [-- PYTEST ARGS]
 
 ``--repo`` runs another checkout's tests with its own ``.venv`` (to measure a
-branch against ``main``). The per-test records (JSON lines) stay in ``--keep``.
+branch against ``main``). The per-test records (JSON lines) stay in ``--keep``;
+``bench_kernels.py --compare BEFORE_DIR AFTER_DIR [N]`` prints two such record
+directories side by side as Markdown (totals, and the N test files that compile
+the most; a cell is kernels compiled, or files added to ``~/.drjit`` where child
+processes compiled more, and the file's test seconds).
 """
 
 from __future__ import annotations
@@ -71,8 +75,37 @@ def by_file(rows):
             for name, group in groups.items()}
 
 
+def compare(before_dir, after_dir, top):
+    """Markdown tables of two kept record directories (e.g. main and a branch): totals, per file."""
+    runs = {}
+    for side, directory in (("before", before_dir), ("after", after_dir)):
+        for label in ("cold", "warm"):
+            path = Path(directory) / f"{label}.jsonl"
+            if path.exists():
+                runs[side, label] = read_rows(path)
+    print("| run | tests | test seconds | kernels launched | compiled | LLVM s | ~/.drjit files added |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for (side, label), rows in runs.items():
+        t = totals(rows)
+        print(f"| {side}, {label} | {len(rows)} | {sum(r['seconds'] for r in rows):.0f} | {t['launches']:,} | "
+              f"{t['compiled']:,} | {t['backend_ms'] / 1000:.0f} | {t['new_files']:,} |")
+    files = {key: by_file(rows) for key, rows in runs.items()}
+    cold = files.get(("before", "cold"), {})
+    print("\n| test file | " + " | ".join(f"{side} {label}" for side, label in runs) + " |")
+    print("|---|" + "---:|" * len(runs))
+    for name in sorted(cold, key=lambda n: -max(cold[n]["compiled"], cold[n]["new_files"]))[:top]:
+        cells = []
+        for key in runs:
+            f = files[key].get(name)
+            cells.append("-" if f is None else f"{max(f['compiled'], f['new_files']):,} ({f['seconds']:.0f} s)")
+        print(f"| `{name}` | " + " | ".join(cells) + " |")
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--compare"]:
+        compare(argv[1], argv[2], int(argv[3]) if len(argv) > 3 else 15)
+        return 0
     pytest_args = argv[argv.index("--") + 1:] if "--" in argv else []
     argv = argv[:argv.index("--")] if "--" in argv else argv
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -97,6 +130,9 @@ def main(argv=None):
         rows = read_rows(out) if out.exists() else []
         runs.append((label, rows))
         t = totals(rows)
+        for r in rows:
+            if r.get("outcome", "passed") != "passed":
+                print(f"  {r['outcome']}: {r['test']}")
         print(f"  {label}: {len(rows)} tests in {seconds:.0f} s (exit {status}); kernels launched "
               f"{t['launches']:,}, compiled {t['compiled']:,} ({t['distinct']:,} distinct, LLVM "
               f"{t['backend_ms'] / 1000:.0f} s), loaded from disk {t['from_disk']:,}; ~/.drjit grew "

@@ -43,6 +43,13 @@ def pytest_configure(config):
 
 
 @pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = (yield).get_result()
+    if report.failed:
+        item.census_outcome = "error" if report.when != "call" else "failed"
+
+
+@pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     dr.kernel_history_clear()
     files = _cache_files()
@@ -51,7 +58,8 @@ def pytest_runtest_protocol(item, nextitem):
     seconds = time.perf_counter() - start
     history = dr.kernel_history([dr.KernelType.JIT])
     compiled = [h for h in history if not h["cache_hit"]]
-    row = {"test": item.nodeid, "seconds": round(seconds, 3), "launches": len(history),
+    row = {"test": item.nodeid, "outcome": getattr(item, "census_outcome", "passed"),
+           "seconds": round(seconds, 3), "launches": len(history),
            "distinct": len({h["hash"] for h in history}),
            "compiled": len(compiled),
            "from_disk": sum(1 for h in history if h["cache_hit"] and h["cache_disk"]),

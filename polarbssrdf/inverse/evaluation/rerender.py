@@ -30,6 +30,7 @@ import mitsuba as mi
 import numpy as np
 from scipy.ndimage import binary_erosion
 
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.geometry import SurfaceMesh, displace, to_mitsuba
 from polarbssrdf.inverse.observations.build import ANALYSER_ANGLES, analyser_images
 from polarbssrdf.io.mitsuba_camera import mitsuba_sensor_dict
