@@ -13,6 +13,8 @@ import types
 
 import numpy as np
 
+from polarbssrdf._arrays import to_jit
+
 
 def _unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
@@ -98,19 +100,18 @@ def sphere_views(atlas, truth, rho_sss, n_cameras=12, intensity=4e4, min_cosine=
     Float, Array3f = mi.Float, mi.Vector3f
 
     def vec(a):
-        a = np.ascontiguousarray(a, np.float32)
-        return Array3f(Float(a[:, 0]), Float(a[:, 1]), Float(a[:, 2]))
+        return Array3f(*(to_jit(Float, a[:, i], np.float32) for i in range(3)))
 
     geometry = ViewGeometry(vec(data["to_camera"]), vec(data["to_light"]),
-                            Float((data["light_intensity"] / data["light_distance_mm"] ** 2)
-                                  .astype(np.float32)),
+                            to_jit(Float, data["light_intensity"] / data["light_distance_mm"] ** 2,
+                                   np.float32),
                             vec(data["light_field"]), vec(data["camera_basis"]))
     texel = data["texel"]
-    params = [Float(truth[name].ravel()[texel].astype(np.float32))
+    params = [to_jit(Float, truth[name].ravel()[texel], np.float32)
               for name in ("eta", "rho_s", "alpha_s", "rho_ss", "alpha_ss")]
     stokes = predict_stokes(geometry, vec(data.pop("normal")), *params)
     analyser = np.stack([np.stack([np.array(image) for image in stokes.analyser_images(
-        Float(rho_sss[b].ravel()[texel].astype(np.float32)))], axis=-1)
+        to_jit(Float, rho_sss[b].ravel()[texel], np.float32))], axis=-1)
         for b in range(len(rho_sss))], axis=1)
     if noise:
         rng = np.random.default_rng(seed)

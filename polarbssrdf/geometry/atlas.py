@@ -7,6 +7,8 @@ import functools
 
 import numpy as np
 
+from polarbssrdf._arrays import to_jit
+
 
 def texel_uv_grid(resolution):
     """Mitsuba ``uv`` of the texel centres of a ``resolution x resolution`` map, (T, T, 2).
@@ -87,8 +89,8 @@ def texel_atlas(mitsuba_mesh, resolution):
     if not mitsuba_mesh.has_vertex_texcoords():
         raise ValueError("texel_atlas: the mesh has no texture coordinates")
     uv = texel_uv_grid(resolution).reshape(-1, 2)
-    si = mitsuba_mesh.eval_parameterization(mi.Point2f(uv[:, 0].astype(np.float32),
-                                                       uv[:, 1].astype(np.float32)))
+    si = mitsuba_mesh.eval_parameterization(mi.Point2f(to_jit(mi.Float, uv[:, 0], np.float32),
+                                                       to_jit(mi.Float, uv[:, 1], np.float32)))
     valid = np.array(si.is_valid())
 
     def grid(vector):

@@ -7,6 +7,8 @@ import pathlib
 
 import numpy as np
 
+from polarbssrdf._arrays import to_jit
+
 
 @dataclasses.dataclass(frozen=True)
 class SurfaceMesh:
@@ -168,12 +170,12 @@ def to_mitsuba(mesh, bsdf=None, emitter=None, with_normals=True):
     result = mi.Mesh(mesh.name, len(mesh.vertices), len(mesh.faces), props,
                      has_vertex_normals=with_normals, has_vertex_texcoords=True)
     params = mi.traverse(result)
-    params["vertex_positions"] = mi.Float(mesh.vertices.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
+    params["vertex_positions"] = to_jit(mi.Float, np.ravel(mesh.vertices), np.float32)
+    params["faces"] = to_jit(mi.UInt32, np.ravel(mesh.faces), np.uint32)
     flipped = np.stack([mesh.uvs[:, 0], 1.0 - mesh.uvs[:, 1]], axis=1)
-    params["vertex_texcoords"] = mi.Float(flipped.astype(np.float32).ravel())
+    params["vertex_texcoords"] = to_jit(mi.Float, flipped.ravel(), np.float32)
     if with_normals:
-        params["vertex_normals"] = mi.Float(mesh.vertex_normals().astype(np.float32).ravel())
+        params["vertex_normals"] = to_jit(mi.Float, mesh.vertex_normals().ravel(), np.float32)
     params.update()
     return result
 

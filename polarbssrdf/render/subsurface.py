@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.optics.fresnel import fresnel_transmittance, plus_minus
 from polarbssrdf.render.texture_diffusion import blur_sum_of_gaussians
 
@@ -99,7 +100,7 @@ def transmitted_irradiance(scene, atlas, eta, shadow_epsilon_mm=1e-3):
         facing = cos_i > 0
         origin = p + n * shadow_epsilon_mm
         rays = mi.Ray3f(mi.Point3f(origin.T.astype(np.float32)), mi.Vector3f(d.T.astype(np.float32)),
-                        mi.Float((distance - 2 * shadow_epsilon_mm).astype(np.float32)))
+                        to_jit(mi.Float, distance - 2 * shadow_epsilon_mm, np.float32))
         visible = ~np.array(scene.ray_test(rays)) & facing
         T_plus, T_minus = plus_minus(*fresnel_transmittance(np.clip(cos_i, 0, 1), eta_texels))
         s_axis = np.cross(n, d)

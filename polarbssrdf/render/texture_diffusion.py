@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarbssrdf._arrays import to_jit
+
 MAX_TAPS_PER_SIDE = 1024
 """A safety cap only: +-4 sigma at the smallest texel is always covered below it (a
 2048^2 face's smallest texels are about 0.07 mm, the widest Gaussian of a skin
@@ -67,9 +69,9 @@ class BlurGeometry:
         self.valid_mask = np.asarray(valid_mask, bool)
         self.texel_size_mm = np.asarray(texel_size_mm)
         Float = module.Float
-        self.valid = Float(self.valid_mask.astype(np.float32).ravel())
+        self.valid = to_jit(Float, self.valid_mask.ravel(), np.float32)
         self.texel_mm = {1: self.texel_size_mm[..., 0], 0: self.texel_size_mm[..., 1]}
-        self.texel_mm_jit = {axis: Float(np.ascontiguousarray(sizes, np.float32).ravel())
+        self.texel_mm_jit = {axis: to_jit(Float, np.ravel(sizes), np.float32)
                              for axis, sizes in self.texel_mm.items()}
         self._smallest = {axis: (float(sizes[self.valid_mask].min()) if self.valid_mask.any()
                                  else 1.0) for axis, sizes in self.texel_mm.items()}
@@ -212,14 +214,15 @@ def _sum_of_gaussians(values, terms, geometry):
             stage_u[j] = total * along_u[j][1] * valid
         dr.eval(*[stage_u[j] for j in active])
     # v passes and the weighted sum: one kernel
-    result = masked * float(identity) if identity else dr.zeros(type(values), len(values))
+    # the weights are fitted per skin and band: kernel inputs, not literals
+    result = masked * dr.opaque(type(values), identity) if identity else dr.zeros(type(values), len(values))
     active = [j for j, p in enumerate(along_v) if p is not None]
     sums = _tap_sums([stage_u[j] for j in active], [gaussians[j][1] for j in active],
                      [along_v[j][0] for j in active], 0, geometry) if active else []
     blurred = dict(zip(active, sums))
     for j, (weight, _) in enumerate(gaussians):
         term = blurred[j] * along_v[j][1] if j in blurred else stage_u[j]
-        result = result + term * float(weight)
+        result = result + term * dr.opaque(type(values), weight)
     result = result * valid
     dr.eval(result)
     return result
@@ -236,7 +239,7 @@ def _sum_of_gaussians_adjoint(grad, terms, geometry):
     valid = geometry.valid
     masked, gaussians, identity, along_u, along_v = _prepare_terms(grad, terms, geometry)
     # transpose of the v passes
-    scaled = [masked * float(w) * (along_v[j][1] if along_v[j] is not None else 1.0)
+    scaled = [masked * dr.opaque(type(grad), w) * (along_v[j][1] if along_v[j] is not None else 1.0)
               for j, (w, _) in enumerate(gaussians)]
     active = [j for j, p in enumerate(along_v) if p is not None]
     dr.eval(*[scaled[j] for j in active])
@@ -252,7 +255,7 @@ def _sum_of_gaussians_adjoint(grad, terms, geometry):
             stage_v[j] = stage_v[j] * along_u[j][1]
     if stage_v:
         dr.eval(*stage_v)
-    result = masked * float(identity) if identity else dr.zeros(type(grad), len(grad))
+    result = masked * dr.opaque(type(grad), identity) if identity else dr.zeros(type(grad), len(grad))
     active = [j for j, p in enumerate(along_u) if p is not None]
     sums = _tap_sums([stage_v[j] for j in active], [gaussians[j][1] for j in active],
                      [along_u[j][0] for j in active], 1, geometry, adjoint=True) if active else []
@@ -268,7 +271,7 @@ def blur_separable(texture, variance_mm2, texel_size_mm, valid_mask):
     """Blur a (T, T) map with one Gaussian of variance ``variance_mm2`` (mm^2), separably."""
     module, from_numpy = _backend_module(texture)
     geometry = blur_geometry(texel_size_mm, valid_mask, module)
-    values = module.Float(np.ravel(texture).astype(np.float32)) if from_numpy else texture.array
+    values = to_jit(module.Float, np.ravel(texture), np.float32) if from_numpy else texture.array
     if geometry.is_identity(variance_mm2):
         values = values * geometry.valid
     else:
@@ -367,7 +370,7 @@ def blur_sum_of_gaussians(texture, weights, variances_mm2, texel_size_mm, valid_
         return texture * 0.0
     shape = geometry.shape
     if from_numpy:
-        values = module.Float(np.ravel(texture).astype(np.float32))
+        values = to_jit(module.Float, np.ravel(texture), np.float32)
         return np.array(_sum_of_gaussians(values, terms, geometry),
                         dtype=np.float32).reshape(shape)
     import drjit as dr

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.geometry import to_mitsuba
 from polarbssrdf.render.stokes_images import analyser_images, render_channel_names, split_stokes
 
@@ -24,7 +25,7 @@ def map_texture(values):
     values = np.ascontiguousarray(values, dtype=np.float32)
     if values.ndim != 2:
         raise ValueError(f"maps must be 2-D (T, T), got shape {values.shape}")
-    return {"type": "bitmap", "data": mi.TensorXf(values[..., None]), "raw": True,
+    return {"type": "bitmap", "data": to_jit(mi.TensorXf, values[..., None]), "raw": True,
             "filter_type": "bilinear", "wrap_mode": "clamp"}
 
 
@@ -78,7 +79,7 @@ def set_exitance(scene, exitance):
 
     params = mi.traverse(scene)
     key = next(k for k in params.keys() if k.endswith("emitter.exitance.data"))
-    params[key] = mi.TensorXf(np.ascontiguousarray(exitance, dtype=np.float32)[..., None])
+    params[key] = to_jit(mi.TensorXf, np.asarray(exitance)[..., None], np.float32)
     params.update()
 
 

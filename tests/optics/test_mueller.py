@@ -6,6 +6,7 @@ import pytest
 
 import mitsuba as mi
 from helpers import mueller_to_numpy as as_numpy
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.optics import (
     coordinate_system,
     depolarizer,
@@ -32,7 +33,7 @@ def random_unit_vectors(rng, n):
 
 
 def test_rotator_matches_mitsuba():
-    theta = mi.Float(np.linspace(-3, 3, 101))
+    theta = to_jit(mi.Float, np.linspace(-3, 3, 101), np.float32)
     np.testing.assert_allclose(as_numpy(rotator(theta)), as_numpy(mi.mueller.rotator(theta)),
                                atol=1e-6)
 
@@ -83,7 +84,7 @@ def test_rotate_mueller_basis_matches_mitsuba(rng):
 
     bases = [perpendicular(fwd_in), perpendicular(fwd_in),
              perpendicular(fwd_out), perpendicular(fwd_out)]
-    M = mi.Matrix4f(*[mi.Float(rng.normal(size=n)) for _ in range(16)])
+    M = mi.Matrix4f(*[to_jit(mi.Float, rng.normal(size=n), np.float32) for _ in range(16)])
     ours = rotate_mueller_basis(M, fwd_in, bases[0], bases[1], fwd_out, bases[2], bases[3])
     theirs = mi.mueller.rotate_mueller_basis(M, fwd_in, bases[0], bases[1],
                                              fwd_out, bases[2], bases[3])
@@ -95,7 +96,7 @@ def test_rotate_mueller_basis_matches_mitsuba(rng):
 
 
 def test_rotation_preserves_degree_of_polarization(rng):
-    theta = mi.Float(rng.uniform(-np.pi, np.pi, 100))
+    theta = to_jit(mi.Float, rng.uniform(-np.pi, np.pi, 100), np.float32)
     s = rotator(theta) @ mi.Vector4f(1.0, 0.6, 0.3, 0.1)
     dop = np.sqrt(np.array(s[1]) ** 2 + np.array(s[2]) ** 2 + np.array(s[3]) ** 2)
     np.testing.assert_allclose(dop, np.sqrt(0.46), rtol=1e-6)
@@ -110,12 +111,12 @@ def test_rotation_sincos_equals_the_angle_and_has_finite_derivatives_where_bases
     )
 
     directions = random_unit_vectors(rng, 64)
-    forward = mi.Vector3f(*[mi.Float(directions[:, k]) for k in range(3)])
+    forward = mi.Vector3f(*[to_jit(mi.Float, directions[:, k], np.float32) for k in range(3)])
     current = stokes_basis(forward)
     # targets at random angles about forward, the first 8 equal to the current basis
     angle = rng.uniform(-np.pi, np.pi, 64)
     angle[:8] = 0.0
-    s, c = dr.sincos(mi.Float(angle))
+    s, c = dr.sincos(to_jit(mi.Float, angle, np.float32))
     target = c * current + s * dr.cross(forward, current)
     reference = stokes_basis_rotation_angle(forward, current, target)
     sin_2theta, cos_2theta = stokes_basis_rotation_sincos(forward, current, target)

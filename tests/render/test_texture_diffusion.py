@@ -152,3 +152,28 @@ def test_the_widest_skin_kernel_is_not_truncated_at_2k():
     var_u = (out * ((j - size // 2) * smallest) ** 2).sum() / total
     assert total == pytest.approx(1.0, rel=1e-4)
     assert var_u == pytest.approx(widest, rel=0.01)
+
+
+def test_other_weights_and_unaligned_input_reuse_the_blur_kernels():
+    """The SoG weights (fitted per skin and band) are kernel inputs, and a NumPy map at any
+    address makes the same kernels: nothing compiles anew (Dr.Jit's kernel history)."""
+    sizes, valid = patch(0.2, 0.25)
+    rng = np.random.default_rng(3)
+    image = rng.uniform(size=(T, T)).astype(np.float32)
+    blur_sum_of_gaussians(image, [0.3, 0.2, 0.5], [1e-6, 0.1, 0.8], sizes, valid)
+    # 4 bytes past a 64-byte boundary: an address NumPy can hand out
+    buffer = np.empty(T * T + 16, np.float32)
+    start = (-buffer.ctypes.data % 64) // 4 + 1
+    unaligned = buffer[start:start + T * T].reshape(T, T)
+    unaligned[...] = rng.uniform(size=(T, T))
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history_clear()
+        out = blur_sum_of_gaussians(unaligned, [0.1, 0.6, 0.3], [1e-6, 0.1, 0.8], sizes, valid)
+        history = dr.kernel_history([dr.KernelType.JIT])
+    # not in memory: compiled, or loaded from ~/.drjit (cache_disk), a kernel new to this process
+    compiled = [h["hash"] for h in history if not h["cache_hit"] or h["cache_disk"]]
+    assert history and not compiled, f"{len(compiled)} of {len(history)} blur kernels compiled anew"
+    # the weights did take effect: the result is the weighted sum of single blurs
+    expected = (0.1 * unaligned + 0.6 * blur_separable(unaligned, 0.1, sizes, valid)
+                + 0.3 * blur_separable(unaligned, 0.8, sizes, valid))
+    np.testing.assert_allclose(out, expected, rtol=1e-5, atol=1e-6)

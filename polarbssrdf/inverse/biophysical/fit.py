@@ -38,6 +38,7 @@ from scipy import sparse
 from scipy.ndimage import zoom
 from scipy.sparse.linalg import LinearOperator, cg
 
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
 from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel, jit_types
 from polarbssrdf.inverse.results.fill import fill_from_neighbours as fill
@@ -181,8 +182,8 @@ class FitLoss:
         T = model.shape[0]
         count = max(int(weight.sum()), 1) * len(model.bands)
         scale = 1.0 / (config.albedo_noise * np.maximum(observed, 1e-3))
-        self.observed = [Float(observed[b].ravel().astype(np.float32)) for b in range(len(model.bands))]
-        self.scale = [Float((scale[b] * weight).ravel().astype(np.float32)) for b in range(len(model.bands))]
+        self.observed = [to_jit(Float, observed[b].ravel(), np.float32) for b in range(len(model.bands))]
+        self.scale = [to_jit(Float, (scale[b] * weight).ravel(), np.float32) for b in range(len(model.bands))]
         self.norm = 1.0 / count
         surface = model.atlas.valid
         index = np.arange(T * T).reshape(T, T)
@@ -197,11 +198,18 @@ class FitLoss:
         along = np.concatenate([np.zeros(len(pairs[0][0]), int), np.ones(len(pairs[1][0]), int)])
         distance = 0.5 * (sizes[first, along] + sizes[second, along])
         inverse_distance = 1.0 / np.maximum(distance, 1e-6)
-        self.pairs = (UInt32(first.astype(np.uint32)), UInt32(second.astype(np.uint32)))
+        self.pairs = (to_jit(UInt32, first, np.uint32), to_jit(UInt32, second, np.uint32))
         self.pair_arrays = (first, second, inverse_distance)
-        self.inverse_distance = Float(inverse_distance.astype(np.float32))
+        self.inverse_distance = to_jit(Float, inverse_distance, np.float32)
         self.pair_norm = 1.0 / max(len(first), 1)
         self.smoothness = config.smoothness_weights()
+        # scalars that vary with the data and the config enter the kernels as inputs, not
+        # literals, so that other faces and configs reuse the compiled kernels
+        self._norm_jit = dr.opaque(Float, self.norm)
+        self._pair_norm_jit = dr.opaque(Float, self.pair_norm)
+        self._smoothness_jit = {name: (dr.opaque(Float, weight),
+                                       dr.opaque(Float, config.bounds[name][1] - config.bounds[name][0]))
+                                for name, weight in self.smoothness.items() if weight > 0}
         # what the Gauss-Newton curvature needs: per band and texel the weight of the
         # squared residual
         self.data_weight = np.stack([(scale[b] * weight).ravel() ** 2 * self.norm
@@ -218,16 +226,15 @@ class FitLoss:
         loss = Float(0.0)
         for b, value in enumerate(predicted):
             r = (value - self.observed[b]) * self.scale[b]
-            loss += dr.sum(r * r) * self.norm
+            loss += dr.sum(r * r) * self._norm_jit
         for name in PARAMETERS:
-            weight = self.smoothness[name]
-            if weight > 0:
-                low, high = self.config.bounds[name]
+            if name in self._smoothness_jit:
+                weight, span = self._smoothness_jit[name]
                 x = params[name]
                 # the map's gradient in bounds ranges per mm, whatever the texel size
                 slope = ((dr.gather(Float, x, self.pairs[0]) - dr.gather(Float, x, self.pairs[1]))
-                         * self.inverse_distance / (high - low))
-                loss += weight * dr.sum(slope * slope) * self.pair_norm
+                         * self.inverse_distance / span)
+                loss += weight * dr.sum(slope * slope) * self._pair_norm_jit
         return loss
 
 
@@ -237,7 +244,7 @@ def local_jacobian(model, maps, names):
     Float, _, _ = jit_types()
     columns = []
     for name in names:
-        params = {n: Float(np.asarray(maps[n], np.float32).ravel()) for n in PARAMETERS}
+        params = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS}
         dr.enable_grad(params[name])
         values = [model.local_albedo(params, b) for b in range(len(model.bands))]
         dr.forward(params[name])
@@ -254,7 +261,7 @@ def _evaluate(loss_fn, maps, names, fixed):
     Float, _, _ = jit_types()
     params = dict(fixed)
     for n in names:
-        params[n] = Float(np.asarray(maps[n], np.float32).ravel())
+        params[n] = to_jit(Float, np.ravel(maps[n]), np.float32)
         dr.enable_grad(params[n])
     value = loss_fn(params)
     return float(value[0]), params, value
@@ -328,7 +335,7 @@ def _gauss_newton(loss_fn, maps, held, config, frozen):
     """
     Float, _, _ = jit_types()
     names = [n for n in PARAMETERS if n not in held]
-    fixed = {n: Float(np.asarray(maps[n], np.float32).ravel()) for n in PARAMETERS if n in held}
+    fixed = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS if n in held}
     flat = {n: np.asarray(maps[n], np.float64).ravel().copy() for n in PARAMETERS}
     movable = frozen.ravel().astype(bool)
     ranges = np.array([config.bounds[n][1] - config.bounds[n][0] for n in names])
@@ -388,11 +395,11 @@ def _adam(loss_fn, maps, held, config, frozen):
 
     Float, _, _ = jit_types()
     names = [n for n in PARAMETERS if n not in held]
-    fixed = {n: Float(np.asarray(maps[n], np.float32).ravel()) for n in PARAMETERS if n in held}
+    fixed = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS if n in held}
     opt = dr.opt.Adam(lr=1e-3)
-    freeze = Float(frozen.ravel().astype(np.float32))  # 1 where a texel may move
+    freeze = to_jit(Float, frozen.ravel(), np.float32)  # 1 where a texel may move
     for n in names:
-        opt[n] = Float(np.asarray(maps[n], np.float32).ravel())
+        opt[n] = to_jit(Float, np.ravel(maps[n]), np.float32)
     steps = int(config.iterations)
     decay = config.final_lr_fraction ** (1.0 / max(steps - 1, 1))
     first = None

@@ -26,6 +26,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.render.subsurface import layered_exitance, subsurface_exit_fraction
 from polarbssrdf.skin.inversion import BOUNDS as INVERSION_BOUNDS
 from polarbssrdf.skin.layers import layer_absorption
@@ -49,10 +50,12 @@ class _Table:
 
     def __init__(self, u0, h, coefficients):
         Float, _, _ = jit_types()
-        self.u0, self.inv_h = float(u0), 1.0 / float(h)
+        # the origin and step differ per band, table and run (they follow the bounds and
+        # the eta range): kernel inputs, not literals, so one kernel serves every table
+        self.u0, self.inv_h = dr.opaque(Float, float(u0)), dr.opaque(Float, 1.0 / float(h))
         self.cells = coefficients[0][0].shape[-1]
         # per quantity, per coefficient: flat (eta row, cell)
-        self.coefficients = [[Float(np.ascontiguousarray(c, dtype=np.float32).ravel()) for c in quantity]
+        self.coefficients = [[to_jit(Float, np.ravel(c), np.float32) for c in quantity]
                              for quantity in coefficients]
 
     def __call__(self, u, row):
@@ -121,13 +124,17 @@ class BiophysicalModel:
         if count > 1:
             position = (eta.ravel() - lo) / (self.eta_nodes[1] - self.eta_nodes[0])
             row = np.clip(np.floor(position), 0, count - 2)
-            self._row = UInt32(row.astype(np.uint32))
-            self._frac = Float((position - row).astype(np.float32))
+            self._row = to_jit(UInt32, row, np.uint32)
+            self._frac = to_jit(Float, position - row, np.float32)
         else:
-            self._row, self._frac = UInt32(np.zeros(eta.size, np.uint32)), None
-        self.inverse_exit_fraction = Float((1.0 / subsurface_exit_fraction(eta)).ravel().astype(np.float32))
-        self.irradiance = TensorXf(np.ascontiguousarray(atlas.valid, dtype=np.float32))
+            self._row, self._frac = to_jit(UInt32, np.zeros(eta.size), np.uint32), None
+        self.inverse_exit_fraction = to_jit(Float, (1.0 / subsurface_exit_fraction(eta)).ravel(), np.float32)
+        self.irradiance = to_jit(TensorXf, atlas.valid, np.float32)
         self.tables = [self._band_tables(b, table_nodes) for b in range(len(self.bands))]
+        # per band, the chromophore basis as kernel inputs: the bands then share kernels
+        self._absorption_basis = [tuple(dr.opaque(Float, float(self.basis[key][b]))
+                                        for key in ("eumelanin", "pheomelanin", "blood", "baseline"))
+                                  for b in range(len(self.bands))]
 
     def _band_tables(self, band, nodes):
         basis = self.basis
@@ -156,9 +163,7 @@ class BiophysicalModel:
 
     def absorption(self, band, params):
         """(sigma_a epidermis, sigma_a dermis) of ``band`` for Dr.Jit parameter arrays."""
-        b = self.basis
-        return layer_absorption(float(b["eumelanin"][band]), float(b["pheomelanin"][band]), float(b["blood"][band]),
-                                float(b["baseline"][band]), *(params[n] for n in PARAMETERS))
+        return layer_absorption(*self._absorption_basis[band], *(params[n] for n in PARAMETERS))
 
     def layer_totals(self, band, params):
         """The five layer totals (flat Dr.Jit Floats) of ``band`` at every texel."""
@@ -201,7 +206,7 @@ class BiophysicalModel:
         Float, _, _ = jit_types()
         if kernels is not None:
             self.kernels = kernels
-        params = {n: Float(np.ascontiguousarray(maps[n], dtype=np.float32).ravel()) for n in PARAMETERS}
+        params = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS}
         out = []
         for band in range(len(self.bands)):
             value = self.render(params, band)

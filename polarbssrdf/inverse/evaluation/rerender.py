@@ -25,10 +25,12 @@ texels is reported.
 
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 from scipy.ndimage import binary_erosion
 
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.geometry import SurfaceMesh, displace, to_mitsuba
 from polarbssrdf.inverse.observations.build import ANALYSER_ANGLES, analyser_images
 from polarbssrdf.io.mitsuba_camera import mitsuba_sensor_dict
@@ -115,7 +117,7 @@ def set_subsurface_albedo(scene, values):
 
     params = mi.traverse(scene)
     key = next(k for k in params.keys() if k.endswith("bsdf.rho_sss.data"))
-    params[key] = mi.TensorXf(np.ascontiguousarray(values, dtype=np.float32)[..., None])
+    params[key] = to_jit(mi.TensorXf, np.asarray(values)[..., None], np.float32)
     params.update()
 
 
@@ -125,13 +127,11 @@ def hit_mask(scene, silhouette_px=SILHOUETTE_PX):
     sensor = scene.sensors()[0]
     width, height = (int(v) for v in sensor.film().crop_size())
     rows, columns = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
-    position = mi.Point2f(((columns.ravel() + 0.5) / width).astype(np.float32),
-                          ((rows.ravel() + 0.5) / height).astype(np.float32))
+    position = mi.Point2f(to_jit(mi.Float, (columns.ravel() + 0.5) / width, np.float32),
+                          to_jit(mi.Float, (rows.ravel() + 0.5) / height, np.float32))
     count = width * height
-    ray, _ = sensor.sample_ray(mi.Float(np.zeros(count, np.float32)),
-                               mi.Float(np.full(count, 0.5, np.float32)), position,
-                               mi.Point2f(np.full(count, 0.5, np.float32),
-                                          np.full(count, 0.5, np.float32)))
+    ray, _ = sensor.sample_ray(dr.zeros(mi.Float, count), dr.full(mi.Float, 0.5, count), position,
+                               dr.full(mi.Point2f, 0.5, count))
     hit = np.array(scene.ray_intersect(ray).is_valid(), dtype=bool).reshape(height, width)
     if silhouette_px > 0:
         hit = binary_erosion(hit, iterations=int(silhouette_px), border_value=0)

@@ -59,6 +59,7 @@ import numpy as np
 from scipy.ndimage import binary_dilation
 from tqdm import tqdm
 
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.capture import channel_name, demosaic_residual
 from polarbssrdf.geometry.atlas import texel_atlas
 from polarbssrdf.geometry.mesh import to_mitsuba
@@ -406,7 +407,7 @@ class _Surface:
         direction = offset / np.maximum(distance, 1e-30)[:, None]
         rays = mi.Ray3f(mi.Point3f(origins.T.astype(np.float32)),
                         mi.Vector3f(direction.T.astype(np.float32)),
-                        mi.Float(np.maximum(distance - 2 * self.epsilon_mm, 0).astype(np.float32)))
+                        to_jit(mi.Float, np.maximum(distance - 2 * self.epsilon_mm, 0), np.float32))
         return np.array(self.scene.ray_test(rays), dtype=bool)
 
     def chunks(self, block_size: int):

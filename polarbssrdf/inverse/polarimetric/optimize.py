@@ -99,7 +99,7 @@ class MapParameters:
         maps = self.variables_of(maps)
         self.resolution = int(np.asarray(maps["eta"]).shape[0])
         self.optimized = tuple(optimized)
-        self.fixed = {name: TensorXf(np.ascontiguousarray(maps[name], np.float32))
+        self.fixed = {name: to_jit(TensorXf, maps[name], np.float32)
                       for name in OPTIMIZED if name not in self.optimized}
         self.kind = optimizer
         if optimizer == "adam":
@@ -110,7 +110,7 @@ class MapParameters:
             raise ValueError(f"unknown optimizer {optimizer!r}; use 'rmsprop' or 'adam'")
         self.learning_rates = {name: float(learning_rates[name]) for name in self.optimized}
         for name in self.optimized:
-            self.optimizer[name] = TensorXf(np.ascontiguousarray(maps[name], np.float32))
+            self.optimizer[name] = to_jit(TensorXf, maps[name], np.float32)
         self.scale_learning_rates(1.0)
         self.rho_sss = np.array(rho_sss, dtype=np.float32)
         self.reference = None
@@ -122,7 +122,7 @@ class MapParameters:
         ``maps``: ``rho_s``, ``rho_ss`` (T, T); ``rho_sss``: (n_bands, T, T);
         ``weights``: ``{"rho_s_temporal", "rho_ss_temporal", "rho_sss_temporal"}``.
         """
-        self.reference = {name: self.TensorXf(np.ascontiguousarray(maps[name], np.float32))
+        self.reference = {name: to_jit(self.TensorXf, maps[name], np.float32)
                           for name in GLOSSY_ALBEDOS}
         self.reference["rho_sss"] = np.array(rho_sss, np.float32).reshape(len(rho_sss), -1)
         self.reference_weights = {name: float(weights.get(name, 0.0)) for name in TEMPORAL_TERMS}
@@ -183,14 +183,14 @@ class MapParameters:
     def restore(self, state):
         """Inverse of :meth:`state` (exactly: values, moments and ``rho_sss``)."""
         for name in OPTIMIZED:
-            tensor = self.TensorXf(np.ascontiguousarray(state[f"map.{name}"], np.float32))
+            tensor = to_jit(self.TensorXf, state[f"map.{name}"], np.float32)
             if name in self.optimized:
                 self.optimizer[name] = tensor
                 value, promoted, lr, extra = self.optimizer.state[name]
                 Float = type(value.array)
 
                 def moment(key):
-                    return Float(np.ascontiguousarray(state[key], np.float32).ravel())
+                    return to_jit(Float, np.ravel(state[key]), np.float32)
 
                 if self.kind == "adam":
                     steps = type(extra[0])(int(state[f"adam_steps.{name}"][0]))
@@ -530,15 +530,19 @@ def patch_losses(params, prepared, config, weights, solve_albedo=True, different
     count = dr.maximum(dr.detach(dr.sum(weight)), 1.0)
     terms = {name: dr.sum(term) / (count * len(prepared.observed))
              for name, term in per_view.items()}
-    total = sum(float(weights.get(name, 0.0)) * terms[name] for name in terms)
+    Float = type(count)
+    # the weights (per stage and config) and the regularizers' values (NumPy, new at every
+    # patch) enter as kernel inputs: as literals each patch compiled a kernel of its own
+    total = sum(dr.opaque(Float, float(weights[name])) * terms[name]
+                for name in terms if float(weights.get(name, 0.0)) != 0.0)
     windows = {name: np.array(values) for name, values in window.items()}
     gradients = {}
     for extra_terms, extra_gradients in (
             window_regularizers(windows, prepared, weights, params.optimized),
             temporal_terms(params, windows, prepared, weights)):
         terms.update(extra_terms)
-        total = total + sum(float(weights.get(name, 0.0)) * value
-                            for name, value in extra_terms.items())
+        total = total + dr.opaque(Float, sum(float(weights.get(name, 0.0)) * value
+                                             for name, value in extra_terms.items()))
         for name, gradient in extra_gradients.items():
             gradients[name] = gradients.get(name, 0.0) + gradient
     return PatchLoss(terms, total, weight, leaves, gradients)

@@ -14,6 +14,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from polarbssrdf._arrays import to_jit
+
 PARAMS = dict(eta=1.45, rho_s=0.8, alpha_s=0.35, rho_ss=0.3, alpha_ss=0.9)
 RHO_SSS = 0.6
 RESOLUTION = 64
@@ -97,12 +99,12 @@ def test_model_matches_mitsuba_render(rendered_sphere):
 
     def vec(a):
         a = a[keep].astype(np.float32)
-        return Array3f(Float(a[:, 0]), Float(a[:, 1]), Float(a[:, 2]))
+        return Array3f(*(to_jit(Float, a[:, i], np.float32) for i in range(3)))
 
     geometry = ViewGeometry(vec(to_camera), vec(to_light),
-                            Float((4e4 / distance[keep] ** 2).astype(np.float32)), vec(field),
+                            to_jit(Float, 4e4 / distance[keep] ** 2, np.float32), vec(field),
                             vec(camera_basis))
-    stokes = predict_stokes(geometry, vec(n), *[Float(np.full(keep.sum(), v, np.float32))
+    stokes = predict_stokes(geometry, vec(n), *[to_jit(Float, np.full(keep.sum(), v), np.float32)
                                                 for v in PARAMS.values()])
     predicted = [np.array(image) for image in stokes.analyser_images(RHO_SSS)]
     reference = [images[name].ravel()[keep] for name in ("I0", "I45", "I90", "I135")]
@@ -133,16 +135,16 @@ def test_coaxial_approximation_differs_with_offset_light(rendered_sphere):
 
     def vec(a):
         a = a[keep].astype(np.float32)
-        return Array3f(Float(a[:, 0]), Float(a[:, 1]), Float(a[:, 2]))
+        return Array3f(*(to_jit(Float, a[:, i], np.float32) for i in range(3)))
 
     to_light = LIGHT - p
     distance = np.linalg.norm(to_light, axis=-1)
     absorption = np.cross(POLARIZER_NORMAL, POLARIZATION_AXIS)
     geometry = ViewGeometry(vec(_unit(CAMERA - p)), vec(to_light / distance[:, None]),
-                            Float((4e4 / distance[keep] ** 2).astype(np.float32)),
+                            to_jit(Float, 4e4 / distance[keep] ** 2, np.float32),
                             vec(_unit(np.cross(-to_light / distance[:, None], absorption))),
                             vec(_unit(np.cross(ray_d, UP))))
-    args = [vec(n)] + [Float(np.full(keep.sum(), v, np.float32)) for v in PARAMS.values()]
+    args = [vec(n)] + [to_jit(Float, np.full(keep.sum(), v), np.float32) for v in PARAMS.values()]
     exact = np.array(predict_stokes(geometry, *args).analyser_images(RHO_SSS)[0])
     coaxial = np.array(predict_stokes(geometry, *args, coaxial=True).analyser_images(RHO_SSS)[0])
     reference = images["I0"].ravel()[keep]
@@ -167,19 +169,19 @@ def test_model_is_differentiable_in_every_parameter():
 
     def vec(a):
         a = a.astype(np.float64)
-        return Array3f(Float(a[:, 0]), Float(a[:, 1]), Float(a[:, 2]))
+        return Array3f(*(to_jit(Float, a[:, i], np.float32) for i in range(3)))
 
-    geometry = ViewGeometry(vec(to_camera), vec(to_light), Float(np.ones(count)), vec(field),
+    geometry = ViewGeometry(vec(to_camera), vec(to_light), to_jit(Float, np.ones(count), np.float32), vec(field),
                             vec(basis))
     base = dict(PARAMS)
     weights = rng.uniform(0.5, 1.5, size=(4, count))
 
     def objective(values):
-        params = {k: Float(np.full(count, v)) for k, v in values.items()}
+        params = {k: to_jit(Float, np.full(count, v), np.float32) for k, v in values.items()}
         for value in params.values():
             dr.enable_grad(value)
         images = predict_stokes(geometry, vec(normal), **params).analyser_images(0.5)
-        total = sum(dr.sum(Float(w) * image) for w, image in zip(weights, images))
+        total = sum(dr.sum(to_jit(Float, w, np.float32) * image) for w, image in zip(weights, images))
         return total, params
 
     total, params = objective(base)

@@ -260,3 +260,34 @@ def test_glossy_amplitude_variables_round_trip_and_decouple_eta():
     moved = params.to_numpy()
     np.testing.assert_allclose(moved["rho_s"] * f0(1.55), maps["rho_s"] * f0(maps["eta"]),
                                rtol=1e-5)
+
+
+def test_an_identical_rerun_and_more_epochs_compile_no_new_kernel(sphere_problem):
+    """Per-epoch scalars (learning rates, the noise unit, gradient scales, the regularizers'
+    values of each patch) are kernel inputs and NumPy batches reach Dr.Jit aligned, so a rerun,
+    and epochs beyond the first run's, use only kernels this process has (kernel history)."""
+    import drjit as dr
+
+    from polarbssrdf.inverse.config import static_config
+    from polarbssrdf.inverse.polarimetric.fit import run_polarimetric_fit
+
+    atlas, store, _, _ = sphere_problem
+    config = static_config(iterations=3)
+    first = run_polarimetric_fit(store, atlas, config, progress=False)
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history_clear()
+        rerun = run_polarimetric_fit(store, atlas, config, progress=False)
+        history = dr.kernel_history([dr.KernelType.JIT])
+    # not in memory: compiled, or loaded from ~/.drjit (cache_disk), a kernel new to this process
+    compiled = sorted({h["hash"] for h in history if not h["cache_hit"] or h["cache_disk"]})
+    assert len(history) > 10
+    assert compiled == [], f"an identical rerun compiled {len(compiled)} of {len(history)} kernels anew"
+    for name, values in first.maps.items():
+        np.testing.assert_array_equal(rerun.maps[name], values, err_msg=name)
+    # more epochs: new regularizer values at every patch, the same kernels
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history_clear()
+        run_polarimetric_fit(store, atlas, static_config(iterations=6), progress=False)
+        history = dr.kernel_history([dr.KernelType.JIT])
+    compiled = sorted({h["hash"] for h in history if not h["cache_hit"] or h["cache_disk"]})
+    assert compiled == [], f"3 more epochs compiled {len(compiled)} of {len(history)} kernels anew"

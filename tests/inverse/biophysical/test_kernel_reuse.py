@@ -1,0 +1,98 @@
+"""The biophysical fit compiles its kernels once: an identical rerun compiles none, nor do other bands.
+
+A value that changes between calls and is baked into a kernel as a literal
+(a table origin, a fitted SoG weight, a loss normalization), or a NumPy buffer
+handed to Dr.Jit at another alignment, makes a kernel hash anew and compiles
+again (bench/bench_kernels.py finds them). Read from Dr.Jit's kernel history.
+"""
+
+import drjit as dr
+import numpy as np
+import pytest
+
+import mitsuba as mi
+from polarbssrdf.spectral import default_bands
+
+T = 32
+
+
+@pytest.fixture(scope="module")
+def face():
+    from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
+    from polarbssrdf.synth.synthesize import subsurface_albedo
+    from polarbssrdf.synth.truth import TruthSettings, truth_maps
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    atlas = texel_atlas(to_mitsuba(face_mesh(1)), T)
+    maps = truth_maps(atlas, TruthSettings(skin=("cheek", "IV")), np.random.default_rng(1))
+    bands = default_bands()
+    return atlas, bands, maps, subsurface_albedo(maps, bands)
+
+
+def albedo_maps(face, seed):
+    """The face's truth albedo with 1% multiplicative noise of ``seed``, as fresh NumPy arrays."""
+    _, bands, maps, albedo = face
+    noisy = albedo * (1.0 + 0.01 * np.random.default_rng(seed).standard_normal(albedo.shape))
+    inputs = {f"rho_sss.{b.name}": noisy[i].copy() for i, b in enumerate(bands)}
+    inputs["eta"] = maps["eta"].copy()
+    return inputs
+
+
+def compiled_kernels(run):
+    """(result of ``run()``, kernels it launched, hashes of those not in Dr.Jit's in-memory cache).
+
+    A kernel not in memory was compiled or loaded from ``~/.drjit`` (``cache_disk``): either
+    way this process had not used it before, so the test does not depend on the disk cache."""
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history_clear()
+        result = run()
+        history = dr.kernel_history([dr.KernelType.JIT])
+    return result, len(history), sorted({h["hash"] for h in history
+                                         if not h["cache_hit"] or h["cache_disk"]})
+
+
+def test_an_identical_rerun_compiles_no_new_kernel(face):
+    from polarbssrdf.inverse.biophysical.fit import BiophysicalConfig, fit_biophysical
+
+    atlas, bands, _, _ = face
+    config = BiophysicalConfig(iterations=3, rounds=2, kernel_tolerance=0.0)
+
+    def fit():
+        return fit_biophysical(albedo_maps(face, 1), bands, atlas, config)
+
+    first = fit()
+    rerun, launched, compiled = compiled_kernels(fit)
+    assert launched > 100  # the fit does run on Dr.Jit
+    assert compiled == [], f"an identical rerun compiled {len(compiled)} of {launched} kernels anew"
+    for name in first.maps:  # and it is deterministic
+        np.testing.assert_array_equal(rerun.maps[name], first.maps[name])
+
+
+def test_every_band_and_other_maps_reuse_the_models_kernels(face):
+    """The chromophore basis and the table origins differ per band (and per run): kernel
+    inputs, so once one band's per-texel albedo is compiled, the others compile nothing."""
+    from polarbssrdf._arrays import to_jit
+    from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel, jit_types
+
+    atlas, bands, maps, albedo = face
+    Float, _, _ = jit_types()
+    model = BiophysicalModel(bands, atlas, maps["eta"])
+
+    def local(values, band):
+        params = {n: to_jit(Float, values[n].ravel(), np.float32) for n in PARAMETERS}
+        out = model.local_albedo(params, band)
+        dr.eval(out)
+        return np.array(out).reshape(atlas.valid.shape)
+
+    first = local(maps, 0)
+    other = {n: maps[n] * 0.9 for n in PARAMETERS}
+    rendered, launched, compiled = compiled_kernels(
+        lambda: [local(other, band) for band in range(1, len(bands))] + [local(maps, 1)])
+    assert launched >= len(bands) - 1
+    assert compiled == [], f"{len(compiled)} of {launched} kernels compiled anew for other bands"
+    # each band keeps its own basis: without the blur the model is synth's lobe albedo (eq. 47
+    # / c(eta)) of that band, to the tables' interpolation error
+    surface = atlas.valid
+    np.testing.assert_allclose(first[surface], albedo[0][surface], rtol=1e-4)
+    np.testing.assert_allclose(rendered[-1][surface], albedo[1][surface], rtol=1e-4)
+    assert np.abs(albedo[1] - albedo[0])[surface].min() > 1e-2  # the bands do differ
