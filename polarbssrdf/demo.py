@@ -260,6 +260,14 @@ def headline_figures(evaluation) -> dict:
             values = [entry["maps"][parameter]["mae_of_range"] for entry in bio.values()]
             figures[f"bio {parameter} MAE / Table 2 range (mean over frames)"] = round(
                 sum(values) / len(values), 4)
+            constants = [entry["maps"][parameter]["constant_mae_of_range"] for entry in bio.values()]
+            figures[f"bio {parameter} MAE of the best constant map / Table 2 range"] = round(
+                sum(constants) / len(constants), 4)
+            coverages = [entry["maps"][parameter].get("coverage") for entry in bio.values()]
+            coverages = [c for c in coverages if c is not None and c == c]
+            if coverages:
+                figures[f"bio {parameter} fraction within 2 std (mean over frames)"] = round(
+                    sum(coverages) / len(coverages), 3)
     return figures
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 from polarbssrdf.inverse.biophysical.model import PARAMETERS
+from polarbssrdf.inverse.biophysical.prior import DEFAULT_CORRELATION_MM, population_prior, within_face_spread
 from polarbssrdf.io.jsonfile import (
     check_boolean,
     check_integer,
@@ -26,6 +27,12 @@ LEARNING_RATES = {"C_m": 3e-4, "beta_m": 3e-3, "C_h_out": 3e-4, "C_h_in": 2e-4}
 
 METHODS = ("gauss_newton", "adam")
 """Step (c)'s optimizers (:attr:`BiophysicalConfig.method`)."""
+
+PRIORS = ("matern", "none")
+"""The maps' priors (:attr:`BiophysicalConfig.prior`)."""
+
+NOISE_MODELS = ("fit", "fixed")
+"""How the albedo noise is set (:attr:`BiophysicalConfig.noise`)."""
 
 
 @dataclasses.dataclass
@@ -57,14 +64,52 @@ class BiophysicalConfig:
         normalized SoG weight).
     learning_rates : dict
         First step size per map; decayed geometrically to ``final_lr_fraction``.
+    prior : {"matern", "none"}
+        ``"matern"`` (default): each chromophore map is a Matérn field around a
+        face mean with spread ``prior_std`` and correlation length
+        ``correlation_mm``, the face mean a Gaussian around ``prior_mean``
+        (:mod:`polarbssrdf.inverse.biophysical.prior`); the posterior standard
+        deviation of every map is written beside it. ``"none"``: the data term
+        and ``smoothness`` only (the fit before issue 20; its std channels then
+        hold the data term's own, per texel).
+    prior_std : dict
+        ``name -> std`` of a chromophore within one face (volume fractions);
+        default the mean of Table 2's within-region "(std)" over its rows. The
+        start, when ``spread`` is ``"fit"``.
+    spread : {"fit", "fixed"}
+        ``"fit"`` (default): after every round each chromophore's spread is
+        re-estimated from its posterior (expectation-maximization), so a face
+        that varies more than Table 2's regions is not flattened; where the
+        bands cannot tell a map, its spread stays about where it started.
+        ``"fixed"`` keeps ``prior_std``.
+    prior_mean : dict
+        ``name -> [mean, std]`` of the face mean's hyperprior; default the mean
+        and spread of Table 2's eight rows. A std of 0 holds the face mean there.
+    correlation_mm : float
+        Correlation length of the Matérn fields (mm).
+    prior_order : {1, 2}
+        The Matérn fields' ``alpha`` (:class:`~polarbssrdf.inverse.biophysical.prior.SpatialPrior`):
+        2 (default) is smooth at the texel scale and pools the data of a few
+        correlation lengths; 1 is rougher and pools over a few texels only.
+    gain_std : float
+        Spread of ``albedo_gain``, a band-common multiplicative error of the
+        input albedo fitted as a nuisance map (Matérn, mean 1, the same
+        correlation length); 0 leaves it out. The static stage's albedo error
+        is 82% common to the bands on the demo face (bench/RESULTS.md).
+    noise : {"fit", "fixed"}
+        ``"fit"`` (default): each band's relative noise starts at
+        ``albedo_noise`` and is re-estimated after every round from the
+        residuals (chi-square over the degrees of freedom the posterior
+        leaves), so the uncertainty is calibrated on the data; ``"fixed"``
+        keeps ``albedo_noise``.
     smoothness : float or dict
-        Weight of the smoothness prior per map (one number for all, or
+        Weight of an extra smoothness penalty per map (one number for all, or
         ``name -> weight``): the mean over neighbouring texel pairs of the
-        squared slope of the map, in bounds ranges per mm (so the same weight
-        means the same at any texture size), against the data term (mean
-        squared relative residual over ``albedo_noise``).
+        squared slope of the map, in bounds ranges per mm, against the data
+        term. 0 by default (the Matérn prior smooths); ``prior="none"`` with
+        ``smoothness=300`` is the fit before issue 20.
     albedo_noise : float
-        Expected relative noise of the albedo maps (scales the data term).
+        Relative noise of the albedo maps per band (the start when ``noise`` is ``"fit"``).
     start_texel_mm : float
         Block size (mm) of the start's per-texel inversion (a); 0 inverts at full resolution.
     bounds : dict
@@ -80,7 +125,15 @@ class BiophysicalConfig:
     kernel_tolerance: float = 0.02
     learning_rates: dict = dataclasses.field(default_factory=lambda: dict(LEARNING_RATES))
     final_lr_fraction: float = 0.05
-    smoothness: object = 300.0
+    prior: str = "matern"
+    prior_std: dict = dataclasses.field(default_factory=within_face_spread)
+    prior_mean: dict = dataclasses.field(default_factory=lambda: {n: list(v) for n, v in population_prior().items()})
+    correlation_mm: float = DEFAULT_CORRELATION_MM
+    prior_order: int = 2
+    gain_std: float = 0.03
+    noise: str = "fit"
+    spread: str = "fit"
+    smoothness: object = 0.0
     albedo_noise: float = 0.01
     start_texel_mm: float = 2.0
     bounds: dict = dataclasses.field(default_factory=lambda: dict(INVERSION_BOUNDS))
@@ -101,12 +154,48 @@ class BiophysicalConfig:
             check_number(weight, where, minimum=0)
         return {n: float(w) for n, w in weights.items()}
 
+    def _check_prior_tables(self):
+        for key in ("prior_std", "prior_mean"):
+            value = getattr(self, key)
+            if not isinstance(value, dict):
+                raise ValueError(f"{key} must be an object, got {json_type(value)}")
+            unknown = sorted(set(value) - set(PARAMETERS))
+            if unknown:
+                raise ValueError(f"{key}: unknown map(s) {unknown}; known: {list(PARAMETERS)}")
+        spread = within_face_spread()
+        hyper = population_prior()
+        for name, value in self.prior_std.items():
+            check_number(value, f"prior_std.{name}")
+            if not value > 0:
+                raise ValueError(f"prior_std.{name} must be > 0, got {value!r}")
+        for name, pair in self.prior_mean.items():
+            if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+                raise ValueError(f"prior_mean.{name} must be [mean, std], got {json_type(pair)}")
+            check_number(pair[0], f"prior_mean.{name}[0]")
+            check_number(pair[1], f"prior_mean.{name}[1]", minimum=0)
+        self.prior_std = {**spread, **{k: float(v) for k, v in self.prior_std.items()}}
+        self.prior_mean = {**{k: list(v) for k, v in hyper.items()},
+                           **{k: [float(v[0]), float(v[1])] for k, v in self.prior_mean.items()}}
+
     def __post_init__(self):
         # JSON types first (errors name the key and the type found): a string or a
         # boolean where a number belongs would otherwise pass or fail far from here
         for name in ("iterations", "rounds"):
             check_integer(getattr(self, name), name, minimum=1 if name == "rounds" else 0)
         check_string(self.method, "method", METHODS)
+        check_string(self.prior, "prior", PRIORS)
+        check_string(self.noise, "noise", NOISE_MODELS)
+        check_string(self.spread, "spread", NOISE_MODELS)
+        check_number(self.correlation_mm, "correlation_mm")
+        if not self.correlation_mm > 0:
+            raise ValueError(f"correlation_mm must be > 0 (mm), got {self.correlation_mm!r}")
+        check_integer(self.prior_order, "prior_order", minimum=1)
+        if self.prior_order > 2:
+            raise ValueError(f"prior_order must be 1 or 2, got {self.prior_order!r}")
+        check_number(self.gain_std, "gain_std", minimum=0)
+        if not self.gain_std < 1:
+            raise ValueError(f"gain_std must be in [0, 1), got {self.gain_std!r}")
+        self._check_prior_tables()
         self.smoothness_weights()  # validates
         for name in ("kernel_tolerance", "albedo_noise", "start_texel_mm"):
             check_number(getattr(self, name), name, minimum=0)

@@ -34,13 +34,20 @@ import time
 import drjit as dr
 import drjit.opt
 import numpy as np
-from scipy import sparse
 from scipy.ndimage import zoom
 from scipy.sparse.linalg import LinearOperator, cg
 
 from polarbssrdf._arrays import to_jit
 from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
 from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel, jit_types
+from polarbssrdf.inverse.biophysical.prior import (
+    FourierPreconditioner,
+    SpatialPrior,
+    expected_prior_energy,
+    mean_mode_covariance,
+    posterior_covariance,
+    updated_spread,
+)
 from polarbssrdf.inverse.results.fill import fill_from_neighbours as fill
 from polarbssrdf.render.subsurface import layer_profile_kernels, subsurface_exit_fraction
 from polarbssrdf.skin.inversion import invert_bands
@@ -49,6 +56,15 @@ from polarbssrdf.skin.parameters import SkinParameters
 START_ETA_STEP = 0.02
 """Texels of the start's inversion share one eta per bin of this width."""
 
+GAIN = "albedo_gain"
+"""The band-common gain's map (unitless): the input albedo is modelled as ``gain * rendered``."""
+
+GAIN_BOUNDS = (0.5, 2.0)
+
+NOISE_TOLERANCE = 0.05
+"""Rounds stop once the kernels have settled and no band's noise estimate nor map's spread
+moved by more than this (relative)."""
+
 
 @dataclasses.dataclass
 class BiophysicalResult:
@@ -56,8 +72,11 @@ class BiophysicalResult:
 
     ``residual`` is the RMS over bands of rendered minus input albedo (0 at
     flagged texels), ``flagged`` marks surface texels whose input was invalid
-    (their parameters are filled from neighbours). ``history`` has one entry per
-    round: loss before/after, kernel change, seconds."""
+    (their parameters come from the prior and their neighbours). ``std``: the
+    posterior standard deviation per map (same units; 0 off the surface),
+    ``noise``: the bands' relative noise and the face means with their std.
+    ``history`` has one entry per round: loss before/after, kernel change, the
+    noise estimate, seconds."""
 
     maps: dict
     residual: np.ndarray
@@ -67,10 +86,18 @@ class BiophysicalResult:
     predicted: np.ndarray
     start: dict
     seconds: float
+    std: dict = dataclasses.field(default_factory=dict)
+    noise: dict = dataclasses.field(default_factory=dict)
 
     def channels(self):
-        """Channels of the stage's map file: ``C_m, beta_m, C_h_out, C_h_in, residual, flagged``."""
-        out = {name: np.ascontiguousarray(self.maps[name], dtype=np.float32) for name in PARAMETERS}
+        """Channels of the stage's map file: ``C_m, beta_m, C_h_out, C_h_in``, their ``<name>_std``,
+        ``albedo_gain`` (with a gain) and its std, ``residual``, ``flagged``."""
+        out = {}
+        for name in (*PARAMETERS, GAIN):
+            if name in self.maps:
+                out[name] = np.ascontiguousarray(self.maps[name], dtype=np.float32)
+            if name in self.std:
+                out[f"{name}_std"] = np.ascontiguousarray(self.std[name], dtype=np.float32)
         out["residual"] = np.ascontiguousarray(self.residual, dtype=np.float32)
         out["flagged"] = self.flagged.astype(np.float32)
         return out
@@ -173,18 +200,23 @@ def kernel_change(old, new):
 
 
 class FitLoss:
-    """The loss of step (c) (eq. 41 + smoothness prior) over Dr.Jit parameter arrays."""
+    """The data term of step (c), eq. 41, over Dr.Jit parameter arrays (and an optional
+    smoothness penalty): ``1/2 sum_b sum_i ((g_i A_b,i - a_b,i) / (sigma_b a_b,i))^2``.
 
-    def __init__(self, model, observed, weight, config):
+    ``A_b`` is the eq. 46 rendering, ``a_b`` the input albedo, ``g`` the
+    band-common gain (``albedo_gain`` in ``params``, 1 without it) and
+    ``sigma_b`` the band's relative noise (:meth:`set_noise`). The Matérn
+    prior is added in NumPy by :class:`PriorTerms`."""
+
+    def __init__(self, model, observed, weight, config, sigma=None):
         Float, UInt32, _ = jit_types()
         self.model = model
         self.config = config
+        self.observed_numpy = observed
+        self.weight = weight
         T = model.shape[0]
-        count = max(int(weight.sum()), 1) * len(model.bands)
-        scale = 1.0 / (config.albedo_noise * np.maximum(observed, 1e-3))
         self.observed = [to_jit(Float, observed[b].ravel(), np.float32) for b in range(len(model.bands))]
-        self.scale = [to_jit(Float, (scale[b] * weight).ravel(), np.float32) for b in range(len(model.bands))]
-        self.norm = 1.0 / count
+        self.set_noise(np.full(len(model.bands), config.albedo_noise) if sigma is None else sigma)
         surface = model.atlas.valid
         index = np.arange(T * T).reshape(T, T)
         pairs = []
@@ -199,34 +231,39 @@ class FitLoss:
         distance = 0.5 * (sizes[first, along] + sizes[second, along])
         inverse_distance = 1.0 / np.maximum(distance, 1e-6)
         self.pairs = (to_jit(UInt32, first, np.uint32), to_jit(UInt32, second, np.uint32))
-        self.pair_arrays = (first, second, inverse_distance)
         self.inverse_distance = to_jit(Float, inverse_distance, np.float32)
-        self.pair_norm = 1.0 / max(len(first), 1)
         self.smoothness = config.smoothness_weights()
+        # the penalty keeps the old normalization: a mean over pairs against the mean data
+        # term, i.e. times the number of data terms / 2 against the summed one
+        data_terms = max(int(weight.sum()), 1) * len(model.bands)
+        pair_weight = 0.5 * data_terms / max(len(first), 1)
         # scalars that vary with the data and the config enter the kernels as inputs, not
         # literals, so that other faces and configs reuse the compiled kernels
-        self._norm_jit = dr.opaque(Float, self.norm)
-        self._pair_norm_jit = dr.opaque(Float, self.pair_norm)
-        self._smoothness_jit = {name: (dr.opaque(Float, weight),
+        self._smoothness_jit = {name: (dr.opaque(Float, w * pair_weight),
                                        dr.opaque(Float, config.bounds[name][1] - config.bounds[name][0]))
-                                for name, weight in self.smoothness.items() if weight > 0}
-        # what the Gauss-Newton curvature needs: per band and texel the weight of the
-        # squared residual
-        self.data_weight = np.stack([(scale[b] * weight).ravel() ** 2 * self.norm
-                                     for b in range(len(model.bands))])
+                                for name, w in self.smoothness.items() if w > 0}
+
+    def set_noise(self, sigma):
+        """Set the bands' relative noise ``sigma`` (n_bands,) and the data term's weights."""
+        Float, _, _ = jit_types()
+        self.sigma = np.asarray(sigma, np.float64)
+        scale = self.weight[None] / (self.sigma[:, None, None] * np.maximum(self.observed_numpy, 1e-3))
+        self.scale_numpy = scale.reshape(len(self.sigma), -1)
+        self.scale = [to_jit(Float, row, np.float32) for row in self.scale_numpy]
 
     def data_terms(self, params):
-        """Per band, the rendered albedo (flat Float)."""
-        return [self.model.render(params, b) for b in range(len(self.model.bands))]
+        """Per band, the predicted albedo ``g A_b`` (flat Float)."""
+        gain = params.get(GAIN)
+        values = [self.model.render(params, b) for b in range(len(self.model.bands))]
+        return values if gain is None else [gain * v for v in values]
 
     def __call__(self, params, predicted=None):
-
         Float, _, _ = jit_types()
         predicted = predicted or self.data_terms(params)
         loss = Float(0.0)
         for b, value in enumerate(predicted):
             r = (value - self.observed[b]) * self.scale[b]
-            loss += dr.sum(r * r) * self._norm_jit
+            loss += 0.5 * dr.sum(r * r)
         for name in PARAMETERS:
             if name in self._smoothness_jit:
                 weight, span = self._smoothness_jit[name]
@@ -234,26 +271,41 @@ class FitLoss:
                 # the map's gradient in bounds ranges per mm, whatever the texel size
                 slope = ((dr.gather(Float, x, self.pairs[0]) - dr.gather(Float, x, self.pairs[1]))
                          * self.inverse_distance / span)
-                loss += weight * dr.sum(slope * slope) * self._pair_norm_jit
+                loss += weight * dr.sum(slope * slope)
         return loss
 
 
 def local_jacobian(model, maps, names):
-    """``(n_texels, n_bands, len(names))`` d(unblurred lobe albedo)/d(map), by Dr.Jit forward mode."""
+    """``(n_texels, n_bands, len(names))`` d(predicted albedo)/d(map) of the unblurred model.
+
+    By Dr.Jit forward mode for the chromophores (times the gain where
+    ``maps`` has one); the gain's column is the unblurred albedo itself."""
 
     Float, _, _ = jit_types()
+    gain = np.ravel(maps[GAIN]) if GAIN in maps else None
     columns = []
     for name in names:
         params = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS}
+        if name == GAIN:
+            values = [model.local_albedo(params, b) for b in range(len(model.bands))]
+            columns.append(np.stack([np.array(v, dtype=np.float64) for v in values], axis=-1))
+            continue
         dr.enable_grad(params[name])
         values = [model.local_albedo(params, b) for b in range(len(model.bands))]
         dr.forward(params[name])
-        columns.append(np.stack([np.array(dr.grad(v), dtype=np.float64) for v in values], axis=-1))
+        column = np.stack([np.array(dr.grad(v), dtype=np.float64) for v in values], axis=-1)
+        columns.append(column if gain is None else column * gain[:, None])
     return np.stack(columns, axis=-1)
 
 
+def data_precision(loss_fn, maps, names, movable):
+    """``(n, k, k)`` Gauss-Newton normal matrix ``sum_b s_b^2 J_b J_b^T`` of the movable texels."""
+    J = local_jacobian(loss_fn.model, maps, names)[movable]
+    return np.einsum("nbi,bn,nbj->nij", J, loss_fn.scale_numpy[:, movable] ** 2, J), J
+
+
 def _evaluate(loss_fn, maps, names, fixed):
-    """The loss at NumPy maps with the free maps' gradients enabled: ``(loss, params, value)``.
+    """The data term at NumPy maps with the free maps' gradients enabled: ``(loss, params, value)``.
 
     :func:`_gradient` then runs the reverse pass only if the point is kept.
     """
@@ -275,138 +327,267 @@ def _gradient(evaluated, names):
     return np.stack([np.array(dr.grad(params[n]), dtype=np.float64) for n in names], axis=-1)
 
 
-def _prior_laplacian(loss_fn, movable):
-    """The prior's pair graph over the movable texels: sparse ``sum w (e_a - e_b)(e_a - e_b)^T``
-    with ``w`` the pair's squared inverse distance (a pair with a held texel adds its
-    diagonal only)."""
+class PriorTerms:
+    """The Matérn prior of the optimized maps and their face means, in NumPy.
 
-    first, second, inverse_distance = loss_fn.pair_arrays
-    index = np.full(movable.size, -1)
-    index[movable] = np.arange(int(movable.sum()))
-    a, b, w = index[first], index[second], inverse_distance ** 2
-    n = int(movable.sum())
-    both = (a >= 0) & (b >= 0)
-    diagonal = (np.bincount(a[a >= 0], weights=w[a >= 0], minlength=n)
-                + np.bincount(b[b >= 0], weights=w[b >= 0], minlength=n))
-    off = sparse.coo_matrix((-w[both], (a[both], b[both])), shape=(n, n))
-    return (off + off.T + sparse.diags(diagonal)).tocsr()
-
-
-def _solve_step(blocks, laplacian, prior, rhs, max_iterations=40, rtol=1e-2):
-    """``delta`` of ``(blocks + prior_k L) delta = rhs`` by block-Jacobi preconditioned CG.
-
-    ``blocks``: (n, k, k) per-texel curvature; ``laplacian``: (n, n) sparse;
-    ``prior``: (k,) weight of the Laplacian per map; ``rhs``: (n, k).
+    ``names``: the optimized maps (chromophores and, with a gain, ``albedo_gain``);
+    ``spatial``: :class:`~polarbssrdf.inverse.biophysical.prior.SpatialPrior` over
+    the movable texels, or None (no prior). ``tau2`` per map (``inf``: none),
+    the face means ``mu`` with their hyperprior ``(mean0, mean_variance)``
+    (variance 0: fixed, as the gain's mean of 1).
     """
 
-    n, k = rhs.shape
-    diagonal = laplacian.diagonal()
-    jacobi = blocks + (prior[None, :] * diagonal[:, None])[:, :, None] * np.eye(k)
-    inverse = np.linalg.inv(jacobi)
+    def __init__(self, names, spatial, config, start_means):
+        self.names = list(names)
+        self.spatial = spatial
+        k = len(self.names)
+        self.tau2 = np.full(k, np.inf)
+        self.mean0 = np.zeros(k)
+        self.mean_variance = np.zeros(k)
+        self.mu = np.zeros(k)
+        self.std = np.zeros(k)
+        for i, name in enumerate(self.names):
+            if name == GAIN:
+                std, (mean, mean_std), start = config.gain_std, (1.0, 0.0), 1.0
+            else:
+                std, (mean, mean_std), start = config.prior_std[name], config.prior_mean[name], start_means[name]
+            self.mean0[i], self.mean_variance[i] = mean, mean_std ** 2
+            self.mu[i] = start if mean_std > 0 else mean
+            self.std[i] = std
+            if spatial is not None:
+                self.tau2[i] = spatial.tau2(std)
+        self.free = self.mean_variance > 0
+        self.active = np.isfinite(self.tau2)
+        if spatial is not None:
+            self.ones_response = spatial.unit @ np.ones(len(spatial.index))  # Q 1 tau^2
+            self.ones_energy = float(self.ones_response.sum())  # 1^T Q 1 tau^2
 
-    def apply(x):
-        x = x.reshape(n, k)
-        return (np.einsum("nij,nj->ni", blocks, x) + (laplacian @ x) * prior[None, :]).ravel()
+    def energy(self, X, mu):
+        """``(value, gradient (n, k), gradient of mu (k,))`` at surface values ``X`` (n, k)."""
+        if self.spatial is None:
+            return 0.0, np.zeros_like(X), np.zeros_like(mu)
+        inverse_tau2 = np.where(self.active, 1.0 / self.tau2, 0.0)
+        deviation = X - mu[None, :]
+        gradient = (self.spatial.unit @ deviation) * inverse_tau2[None, :]
+        value = 0.5 * float(np.sum(deviation * gradient))
+        mean_gradient = -gradient.sum(axis=0)
+        free = self.free & self.active
+        value += 0.5 * float(np.sum((mu[free] - self.mean0[free]) ** 2 / self.mean_variance[free]))
+        mean_gradient[free] += (mu[free] - self.mean0[free]) / self.mean_variance[free]
+        mean_gradient[~free] = 0.0
+        return value, gradient, mean_gradient
 
-    def precondition(x):
-        return np.einsum("nij,nj->ni", inverse, x.reshape(n, k)).ravel()
+    def update_spreads(self, maps, C, movable):
+        """Re-estimate the chromophores' spreads (not the gain's) from the posterior
+        (:func:`~polarbssrdf.inverse.biophysical.prior.updated_spread`); returns the
+        largest relative change."""
+        if self.spatial is None:
+            return 0.0
+        spatial = self.spatial
+        energy = expected_prior_energy(C, spatial.area, self.tau2, spatial.correlation_mm, spatial.order)
+        change = 0.0
+        for i, name in enumerate(self.names):
+            if name == GAIN or not self.active[i]:
+                continue
+            deviation = np.ravel(maps[name])[movable] - self.mu[i]
+            tau2, std = updated_spread(deviation, spatial.unit, energy[:, i], self.tau2[i], self.std[i])
+            change = max(change, abs(np.log(std / self.std[i])))
+            self.tau2[i], self.std[i] = tau2, std
+        return change
 
-    if not np.any(prior > 0):
-        return np.einsum("nij,nj->ni", inverse, rhs)
-    operator = LinearOperator((n * k, n * k), matvec=apply, dtype=np.float64)
-    solution, _ = cg(operator, rhs.ravel(), x0=precondition(rhs.ravel()), rtol=rtol,
-                     maxiter=max_iterations,
-                     M=LinearOperator((n * k, n * k), matvec=precondition, dtype=np.float64))
-    return solution.reshape(n, k)
+
+def _solve_step(blocks, prior, rhs_x, rhs_mu, damping, max_iterations=200, rtol=1e-3):
+    """``(delta_x (n, k), delta_mu (k,))`` of the damped Gauss-Newton system, by CG.
+
+    The system is ``H delta = rhs`` with ``H`` the per-texel data blocks
+    (n, k, k) plus the prior's Hessian over the maps and their face means
+    (:class:`PriorTerms`), plus ``damping`` times its diagonal
+    (Levenberg-Marquardt); block-Jacobi preconditioned conjugate gradients.
+    Without a prior the blocks decouple and are solved directly.
+    """
+
+    n, k = rhs_x.shape
+    eye = np.eye(k)
+    if prior.spatial is None:
+        diagonal = np.einsum("nii->ni", blocks)
+        damped = blocks + damping * (diagonal[:, :, None] * eye + 1e-12 * eye)
+        return np.linalg.solve(damped, rhs_x[:, :, None])[..., 0], np.zeros(k)
+    inverse_tau2 = np.where(prior.active, 1.0 / prior.tau2, 0.0)
+    unit = prior.spatial.unit
+    q1 = prior.ones_response
+    free = prior.free & prior.active
+    safe_variance = np.where(free, prior.mean_variance, 1.0)
+    mean_diagonal = np.where(free, prior.ones_energy * inverse_tau2 + 1.0 / safe_variance, 1.0)
+    prior_diagonal = unit.diagonal()[:, None] * inverse_tau2[None, :]
+    diagonal = np.einsum("nii->ni", blocks) + prior_diagonal
+    damped_blocks = blocks + damping * (diagonal[:, :, None] * eye + 1e-12 * eye)
+    mean_damped = mean_diagonal * (1.0 + damping)
+    spatial = prior.spatial
+    fourier = FourierPreconditioner(spatial.shape, spatial.index, spatial.texel_area, prior.tau2,
+                                    damped_blocks.mean(axis=0), spatial.correlation_mm, spatial.order)
+
+    def apply(z):
+        x, mu = z[:n * k].reshape(n, k), z[n * k:]
+        mu = np.where(free, mu, 0.0)
+        y = (np.einsum("nij,nj->ni", damped_blocks, x) + (unit @ x) * inverse_tau2[None, :]
+             - q1[:, None] * (mu * inverse_tau2)[None, :])
+        y_mu = np.where(free, -(q1 @ x) * inverse_tau2 + mean_damped * mu, z[n * k:])
+        return np.concatenate([y.ravel(), y_mu])
+
+    def precondition(z):
+        x, mu = z[:n * k].reshape(n, k), z[n * k:]
+        return np.concatenate([fourier(x).ravel(), mu / mean_damped])
+
+    size = n * k + k
+    rhs = np.concatenate([rhs_x.ravel(), np.where(free, rhs_mu, 0.0)])
+    operator = LinearOperator((size, size), matvec=apply, dtype=np.float64)
+    solution, _ = cg(operator, rhs, x0=precondition(rhs), rtol=rtol, maxiter=max_iterations,
+                     M=LinearOperator((size, size), matvec=precondition, dtype=np.float64))
+    return solution[:n * k].reshape(n, k), np.where(free, solution[n * k:], 0.0)
 
 
-def _gauss_newton(loss_fn, maps, held, config, frozen):
-    """Step (c) by damped Gauss-Newton on the free maps; returns maps, first/last loss, losses.
+def _bounds(config, name):
+    return GAIN_BOUNDS if name == GAIN else config.bounds[name]
 
-    The step solves ``(C + mu diag(C) + P) delta = -g`` with ``g`` the exact
-    gradient, ``C`` per texel ``2 sum_b w_b J_b J_b^T`` (``J_b`` the Jacobian of
-    the unblurred model, :func:`local_jacobian`; ``w_b`` the data term's
-    weights) and ``P`` the smoothness prior's exact Hessian, a graph Laplacian
-    that couples neighbours (:func:`_solve_step`, conjugate gradients). The
-    blur only averages neighbouring texels' sensitivities (a normalized blur has
-    gain <= 1), so ``C`` bounds the data term's curvature from above and
-    undamped steps do not overshoot it; ``mu`` grows when a step does not lower
-    the loss.
+
+def _gauss_newton(loss_fn, prior, maps, held, config, movable, progress=None):
+    """Step (c) by damped Gauss-Newton on the free maps and their face means.
+
+    The step solves ``(H + mu diag(H)) delta = -g`` with ``g`` the exact
+    gradient (Dr.Jit reverse mode through the blur, plus the prior's), ``H``
+    per texel ``sum_b s_b^2 J_b J_b^T`` (``J_b`` the Jacobian of the unblurred
+    model, :func:`local_jacobian`) plus the prior's exact Hessian, which couples
+    neighbours and the face means (:func:`_solve_step`). The blur only averages
+    neighbouring texels' sensitivities (a normalized blur has gain <= 1), so the
+    unblurred curvature bounds the data term's from above and undamped steps do
+    not overshoot it; ``mu`` grows when a step does not lower the loss.
+    Returns maps, first/last loss and the accepted losses; ``prior.mu`` is updated.
     """
     Float, _, _ = jit_types()
-    names = [n for n in PARAMETERS if n not in held]
+    names = prior.names
     fixed = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS if n in held}
-    flat = {n: np.asarray(maps[n], np.float64).ravel().copy() for n in PARAMETERS}
-    movable = frozen.ravel().astype(bool)
-    ranges = np.array([config.bounds[n][1] - config.bounds[n][0] for n in names])
-    weights = np.array([loss_fn.smoothness[n] for n in names])
-    laplacian = _prior_laplacian(loss_fn, movable)
-    prior = 2.0 * weights * loss_fn.pair_norm / ranges ** 2  # per map, times the Laplacian
-    evaluated = _evaluate(loss_fn, flat, names, fixed)
-    loss, gradient = evaluated[0], _gradient(evaluated, names)
+    flat = {n: np.asarray(maps[n], np.float64).ravel().copy() for n in maps}
+
+    def total(values, means):
+        evaluated = _evaluate(loss_fn, values, names, fixed)
+        X = np.stack([values[n][movable] for n in names], axis=-1)
+        value, grad_x, grad_mu = prior.energy(X, means)
+        return evaluated[0] + value, evaluated, grad_x, grad_mu
+
+    mean = prior.mu.copy()
+    loss, evaluated, prior_x, prior_mu = total(flat, mean)
+    gradient = _gradient(evaluated, names)[movable] + prior_x
     first = loss
     losses = [loss]
-    mu = 1e-3
-    identity = np.eye(len(names))
-    for _ in range(int(config.iterations)):
-        J = local_jacobian(loss_fn.model, flat, names)  # (N, bands, k)
-        curvature = 2.0 * np.einsum("nbi,bn,nbj->nij", J[movable], loss_fn.data_weight[:, movable],
-                                    J[movable])
-        diagonal = np.einsum("nii->ni", curvature)
+    damping = 1e-3
+    steps = int(config.iterations)
+    for step_index in range(steps):
+        blocks, _ = data_precision(loss_fn, flat, names, movable)
         accepted = False
-        while mu < 1e8:
-            blocks = curvature + mu * (diagonal[:, :, None] * identity + 1e-12 * identity)
-            step = _solve_step(blocks, laplacian, prior, -gradient[movable])
+        while damping < 1e8:
+            step, step_mu = _solve_step(blocks, prior, -gradient, -prior_mu, damping)
             trial = {n: v.copy() for n, v in flat.items()}
             for k, n in enumerate(names):
-                low, high = config.bounds[n]
+                low, high = _bounds(config, n)
                 trial[n][movable] = np.clip(flat[n][movable] + step[:, k], low, high)
-            evaluated = _evaluate(loss_fn, trial, names, fixed)
-            trial_loss = evaluated[0]
+            trial_mean = mean + step_mu
+            for k, n in enumerate(names):
+                trial_mean[k] = np.clip(trial_mean[k], *_bounds(config, n))
+            trial_loss, trial_evaluated, trial_prior_x, trial_prior_mu = total(trial, trial_mean)
             if np.isfinite(trial_loss) and trial_loss < loss:
                 accepted = True
                 break
-            mu *= 4.0
+            damping *= 4.0
         if not accepted:
             break
-        mu = max(mu / 3.0, 1e-6)
-        decrease = (loss - trial_loss) / max(loss, 1e-30)
-        flat = trial
-        loss = trial_loss
+        damping = max(damping / 3.0, 1e-6)
+        decrease = (loss - trial_loss) / max(abs(loss), 1e-30)
+        flat, mean, loss = trial, trial_mean, trial_loss
         losses.append(loss)
+        if progress:
+            progress(f"step {step_index + 1}/{steps}: loss {loss:.6g}")
         if decrease < config.tolerance:
             break
-        gradient = _gradient(evaluated, names)
+        gradient = _gradient(trial_evaluated, names)[movable] + trial_prior_x
+        prior_mu = trial_prior_mu
     out = dict(maps)
     for n in names:
         out[n] = flat[n].reshape(maps[n].shape)
+    prior.mu = mean
     return out, first, loss, losses
 
 
-def _optimize(loss_fn, maps, held, config, frozen):
+def posterior_blocks(loss_fn, prior, maps, movable):
+    """``(n, k, k)`` posterior covariance of the optimized maps per movable texel, the data
+    precision and the means' covariance (:mod:`~polarbssrdf.inverse.biophysical.prior`).
+
+    Without a spatial prior, the data term's own inverse per texel (a pseudo-inverse: a
+    direction the bands do not see has no finite spread, it is reported as the
+    map's bounds range)."""
+
+    names = prior.names
+    C, J = data_precision(loss_fn, maps, names, movable)
+    k = len(names)
+    if prior.spatial is None:
+        covariance = np.linalg.pinv(C, hermitian=True)
+        return covariance, C, J, np.zeros((k, k))
+    area = prior.spatial.area
+    covariance = posterior_covariance(C, area, prior.tau2, prior.spatial.correlation_mm, prior.spatial.order)
+    mean_variance = np.where(prior.free & prior.active, prior.mean_variance, 0.0)
+    extra, mean_covariance = mean_mode_covariance(C, area, prior.tau2, mean_variance)
+    return covariance + extra, C, J, mean_covariance
+
+
+def calibrated_noise(loss_fn, predicted, covariance, J, movable):
+    """Per band ``(sigma, chi2, dof)``: the relative noise re-estimated from the residuals.
+
+    ``sigma_b^2`` is scaled by ``chi2_b / (N_b - t_b)``: ``chi2_b`` the band's
+    weighted squared residuals, ``N_b`` its data terms and ``t_b =
+    sum_i s_b,i^2 J_b,i^T Sigma_i J_b,i`` the degrees of freedom the posterior
+    spends on them (the trace of the band's hat matrix); the estimate of
+    Gaussian noise under a Gaussian posterior (e.g. Gelman et al., Bayesian
+    Data Analysis, 3rd ed., sec. 7.2's effective number of parameters)."""
+
+    scale = loss_fn.scale_numpy[:, movable]
+    residual = (np.stack([np.ravel(p) for p in predicted])[:, movable] - loss_fn.observed_numpy.reshape(
+        len(predicted), -1)[:, movable]) * scale
+    chi2 = np.sum(residual ** 2, axis=1)
+    count = np.sum(scale > 0, axis=1).astype(np.float64)
+    dof = np.einsum("bn,nbi,nij,nbj->b", scale ** 2, J, covariance, J)
+    ratio = chi2 / np.maximum(count - dof, 0.1 * count)
+    return loss_fn.sigma * np.sqrt(ratio), chi2, dof
+
+
+def _optimize(loss_fn, prior, maps, held, config, movable, progress=None):
     """Step (c) with the configured method; returns maps and the first and last loss."""
     if config.method == "gauss_newton":
-        return _gauss_newton(loss_fn, maps, held, config, frozen)
-    return _adam(loss_fn, maps, held, config, frozen)
+        return _gauss_newton(loss_fn, prior, maps, held, config, movable, progress)
+    return _adam(loss_fn, prior, maps, held, config, movable)
 
 
-def _adam(loss_fn, maps, held, config, frozen):
-    """Step (c): Adam on the four maps (flat), clamped after every step; returns maps and losses."""
+def _adam(loss_fn, prior, maps, held, config, movable):
+    """Step (c): Adam on the maps (flat), clamped after every step; returns maps and losses.
 
+    The data term only (``prior`` must be without a spatial part): Adam is the
+    slow reference the Gauss-Newton fit is checked against."""
+
+    if prior.spatial is not None:
+        raise ValueError("method 'adam' fits without a prior: set prior to 'none'")
     Float, _, _ = jit_types()
-    names = [n for n in PARAMETERS if n not in held]
+    names = prior.names
     fixed = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS if n in held}
     opt = dr.opt.Adam(lr=1e-3)
-    freeze = to_jit(Float, frozen.ravel(), np.float32)  # 1 where a texel may move
+    freeze = to_jit(Float, movable.ravel(), np.float32)  # 1 where a texel may move
     for n in names:
         opt[n] = to_jit(Float, np.ravel(maps[n]), np.float32)
+    rates = {**config.learning_rates, GAIN: 1e-3}
     steps = int(config.iterations)
     decay = config.final_lr_fraction ** (1.0 / max(steps - 1, 1))
     first = None
     last = None
     for step in range(steps):
         for n in names:
-            opt.set_learning_rate({n: config.learning_rates[n] * decay**step})
+            opt.set_learning_rate({n: rates[n] * decay**step})
         params = {**fixed, **{n: opt[n] for n in names}}
         loss = loss_fn(params)
         dr.backward(loss)
@@ -418,7 +599,7 @@ def _adam(loss_fn, maps, held, config, frozen):
         last = value
         opt.step()
         for n in names:
-            low, high = config.bounds[n]
+            low, high = _bounds(config, n)
             opt[n] = dr.clip(opt[n], low, high)
     out = dict(maps)
     for n in names:
@@ -426,7 +607,13 @@ def _adam(loss_fn, maps, held, config, frozen):
     return out, first, last, []
 
 
-def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=None, progress=None):
+def _start_means(maps, good):
+    """The face means' start: each map's median over the texels with valid input."""
+    return {n: float(np.median(maps[n][good])) for n in PARAMETERS}
+
+
+def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=None, progress=None,
+                    held_std=None):
     """Biophysical maps from subsurface albedo maps (see the module docstring).
 
     Parameters
@@ -446,7 +633,10 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
         Maps held fixed (not optimized), e.g. ``C_m`` and ``beta_m`` of the
         static frame.
     progress : callable, optional
-        Called with a message per round.
+        Called with a message per Gauss-Newton step and per round.
+    held_std : dict, optional
+        Posterior standard deviation of the held maps (their ``<name>_std``
+        channels then carry it); NaN where not given.
 
     Returns
     -------
@@ -499,33 +689,86 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
         low, high = config.bounds[name]
         maps[name] = np.clip(fill_from_neighbours(maps[name], good & np.isfinite(maps[name]), surface), low, high)
     start_copy = {n: maps[n].astype(np.float32) for n in PARAMETERS}
+    with_gain = config.gain_std > 0
+    names = [n for n in PARAMETERS if n not in held] + ([GAIN] if with_gain else [])
+    if with_gain:
+        maps[GAIN] = np.where(surface, 1.0, 1.0)
 
     model = BiophysicalModel(bands, atlas, eta, config.thickness_mm, config.bounds)
-    loss_fn = FitLoss(model, observed, good, config)
+    # flagged texels have no data term: the prior interpolates them
+    loss_fn = FitLoss(model, observed, good.astype(np.float64), config)
+    spatial = (SpatialPrior(surface, atlas.texel_size_mm, config.correlation_mm, config.prior_order)
+               if config.prior == "matern" else None)
+    prior = PriorTerms(names, spatial, config, _start_means(maps, good))
+    movable = surface.ravel()  # the flat maps' unknowns, in the spatial prior's order
     texel = median_intensity_texel(observed, good)
     kernels = fit_kernels(maps, texel, bands, eta, config)
     history = []
     for round_index in range(config.rounds):
         t_round = time.perf_counter()
         model.kernels = kernels
-        maps, before, after, losses = _optimize(loss_fn, maps, held, config, surface)
-        for name in PARAMETERS:
-            if name not in held and flagged.any():
+
+        def step_progress(message, _round=round_index):
+            if progress:
+                progress(f"bio round {_round + 1}/{config.rounds}, {message}")
+
+        maps, before, after, losses = _optimize(loss_fn, prior, maps, held, config, movable, step_progress)
+        if spatial is None and flagged.any():
+            for name in names:
                 maps[name] = fill_from_neighbours(maps[name], good, surface)
         new_kernels = fit_kernels(maps, texel, bands, eta, config)
         change = kernel_change(kernels, new_kernels)
-        history.append({"round": round_index, "loss_start": before, "loss_end": after,
-                        "losses": [float(v) for v in losses],
-                        "kernel_change": change, "seconds": time.perf_counter() - t_round})
+        entry = {"round": round_index, "loss_start": before, "loss_end": after,
+                 "losses": [float(v) for v in losses], "kernel_change": change}
+        noise_change = 0.0
+        if config.noise == "fit" and config.method == "gauss_newton":
+            # re-estimate the noise at this round's maps (and kernels): the next round
+            # weighs the data by it, the posterior spread is scaled by it
+            predicted = loss_fn.data_terms({n: to_jit(jit_types()[0], np.ravel(maps[n]), np.float32)
+                                            for n in maps})
+            predicted = [np.array(p, dtype=np.float64) for p in predicted]
+            covariance, _, J, _ = posterior_blocks(loss_fn, prior, maps, movable)
+            sigma, chi2, dof = calibrated_noise(loss_fn, predicted, covariance, J, movable)
+            noise_change = float(np.max(np.abs(np.log(sigma / loss_fn.sigma))))
+            entry.update(noise=[float(v) for v in sigma], chi2=[float(v) for v in chi2],
+                         dof=[float(v) for v in dof])
+            loss_fn.set_noise(sigma)
+        if config.spread == "fit" and config.method == "gauss_newton" and spatial is not None:
+            C, _ = data_precision(loss_fn, maps, names, movable)
+            noise_change = max(noise_change, prior.update_spreads(maps, C, movable))
+            entry["spread"] = {n: float(v) for n, v in zip(names, prior.std)}
+        entry["seconds"] = time.perf_counter() - t_round
+        history.append(entry)
         if progress:
-            progress(f"bio round {round_index}: loss {before} -> {after}, kernel change {change:.4f}")
+            progress(f"bio round {round_index + 1}: loss {before:.6g} -> {after:.6g}, "
+                     f"kernel change {change:.4f}, noise change {noise_change:.3f}")
         kernels = new_kernels
-        if change < config.kernel_tolerance:
+        if change < config.kernel_tolerance and noise_change < NOISE_TOLERANCE:
             break
     model.kernels = kernels
+    covariance, _, _, mean_covariance = posterior_blocks(loss_fn, prior, maps, movable)
+    std = {}
+    for k, name in enumerate(names):
+        values = np.zeros(surface.size)
+        low, high = _bounds(config, name)
+        values[surface.ravel()] = np.minimum(np.sqrt(np.maximum(covariance[:, k, k], 0.0)), high - low)
+        std[name] = values.reshape(shape).astype(np.float32)
+    for name in held:
+        given = (held_std or {}).get(name)
+        std[name] = (np.full(shape, np.nan, np.float32) if given is None
+                     else np.asarray(given, np.float32))
     predicted = model.render_numpy(maps)
+    if with_gain:
+        predicted = predicted * maps[GAIN][None].astype(np.float32)
     residual = np.sqrt(np.mean((predicted - observed) ** 2, axis=0))
     residual = np.where(good, residual, 0.0)
     out = {n: maps[n].astype(np.float32) for n in PARAMETERS}
+    if with_gain:
+        out[GAIN] = maps[GAIN].astype(np.float32)
+    means = {n: {"mean": float(prior.mu[k]), "std": float(np.sqrt(max(mean_covariance[k, k], 0.0)))}
+             for k, n in enumerate(names) if prior.free[k]}
+    noise = {"relative_sigma": {b.name: float(s) for b, s in zip(bands, loss_fn.sigma)},
+             "model": config.noise, "face_means": means,
+             "spread": {n: float(v) for n, v in zip(names, prior.std)}}
     return BiophysicalResult(out, residual.astype(np.float32), flagged, kernels, history,
-                             predicted, start_copy, time.perf_counter() - t0)
+                             predicted, start_copy, time.perf_counter() - t0, std, noise)

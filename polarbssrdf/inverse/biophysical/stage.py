@@ -5,9 +5,12 @@ Reads the subsurface albedo maps an earlier stage registered in
 ``static`` maps), fits melanin and hemoglobin with
 :func:`polarbssrdf.inverse.biophysical.fit.fit_biophysical`, and writes per frame
 
-* ``bio/maps_f####.exr``: ``C_m, beta_m, C_h_out, C_h_in`` (volume fractions),
-  ``residual`` (RMS over bands of rendered minus input albedo) and
-  ``flagged`` (1 where the input was invalid and the values are filled in);
+* ``bio/maps_f####.exr``: ``C_m, beta_m, C_h_out, C_h_in`` (volume fractions)
+  and their posterior standard deviations ``<map>_std`` (same units),
+  ``albedo_gain`` (the band-common gain fitted as a nuisance, unitless) and
+  ``albedo_gain_std``, ``residual`` (RMS over bands of rendered minus input
+  albedo) and ``flagged`` (1 where the input was invalid and the values come
+  from the prior and the neighbours);
 * ``bio/previews/<map>_f####.png`` with colour bars and units;
 * ``bio/summary.json``: mean and standard deviation per region and frame in
   the layout of the supplement's Table 2 (:func:`region_summary`).
@@ -15,7 +18,7 @@ Reads the subsurface albedo maps an earlier stage registered in
 Frames: the first frame is fitted from the per-texel start; every later
 frame starts from the first frame's maps and, by default, holds ``C_m`` and
 ``beta_m`` there (melanin does not change within seconds; ``bio.free_melanin``
-frees them). Each frame is :func:`fit_frame`, a pure function of (the first
+frees them), with the first frame's std. Each frame is :func:`fit_frame`, a pure function of (the first
 frame's biophysical maps, that frame's albedo maps), so frames can run in
 parallel; a frame whose file exists is skipped on resume.
 """
@@ -29,11 +32,12 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 from PIL import Image
+from tqdm import tqdm
 
 from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.geometry.face import face_mesh, face_region_masks
 from polarbssrdf.inverse.biophysical.config import bio_config
-from polarbssrdf.inverse.biophysical.fit import fit_biophysical
+from polarbssrdf.inverse.biophysical.fit import GAIN, fit_biophysical
 from polarbssrdf.inverse.biophysical.model import PARAMETERS
 from polarbssrdf.inverse.frames import run_frames
 from polarbssrdf.inverse.results.directory import (
@@ -56,7 +60,8 @@ SOURCE_STAGES = ("dynamic", "static")
 
 UNITS = {"C_m": "volume fraction", "beta_m": "fraction of melanin",
          "C_h_out": "volume fraction", "C_h_in": "volume fraction", "residual": "albedo",
-         "flagged": "1"}
+         "flagged": "unitless", GAIN: "unitless"}
+UNITS.update({f"{name}_std": UNITS[name] for name in (*PARAMETERS, GAIN)})
 """Units of the stage's channels (``C_m``: melanin in the epidermis; ``beta_m``: eumelanin
 share of it; ``C_h_out``/``C_h_in``: blood in the epidermis/dermis)."""
 
@@ -91,7 +96,7 @@ def albedo_inputs(maps, bands):
     return {name: maps[name] for name in wanted if name in maps}
 
 
-def fit_frame(albedo_maps, bands, atlas, config, reference=None, free_melanin=False):
+def fit_frame(albedo_maps, bands, atlas, config, reference=None, free_melanin=False, progress=None):
     """One frame's biophysical fit: a pure function of its inputs.
 
     Parameters
@@ -100,17 +105,22 @@ def fit_frame(albedo_maps, bands, atlas, config, reference=None, free_melanin=Fa
         ``rho_sss.<band>`` (and optional ``eta``, ``confidence``) of the frame.
     reference : dict, optional
         The first frame's biophysical maps: the start, and (unless
-        ``free_melanin``) the held values of ``C_m`` and ``beta_m``.
+        ``free_melanin``) the held values of ``C_m`` and ``beta_m`` (with their
+        ``_std`` channels where it has them).
+    progress : callable, optional
+        Called with a message per Gauss-Newton step and round.
 
     Returns
     -------
     BiophysicalResult
     """
-    held = None
+    held = held_std = None
     if reference is not None and not free_melanin:
         held = {name: reference[name] for name in ("C_m", "beta_m")}
+        held_std = {name: reference[f"{name}_std"] for name in held if f"{name}_std" in reference}
     start = None if reference is None else {name: reference[name] for name in PARAMETERS}
-    return fit_biophysical(albedo_maps, bands, atlas, config, start=start, held=held)
+    return fit_biophysical(albedo_maps, bands, atlas, config, start=start, held=held,
+                           progress=progress, held_std=held_std)
 
 
 def region_masks(capture, mesh, atlas):
@@ -165,7 +175,8 @@ def region_summary(maps_per_frame, masks):
 def write_bio_previews(channels, directory, frame):
     """Previews of the four maps and the residual (colour bars, units)."""
 
-    shown = {name: channels[name] for name in (*PARAMETERS, "residual")}
+    shown = {name: channels[name] for name in (*PARAMETERS, *(f"{n}_std" for n in PARAMETERS), GAIN,
+                                               "residual") if name in channels}
     return write_map_previews(shown, directory, f"f{frame:04d}", units=UNITS)
 
 
@@ -182,7 +193,7 @@ def _atlas(capture, texture_size):
     return _ATLASES[key]
 
 
-def write_frame(capture, outdir, frame, source, texture_size, settings, reference=None):
+def write_frame(capture, outdir, frame, source, texture_size, settings, reference=None, progress=None):
     """Fit one frame and write its map file (not registered) and previews; returns its channels.
 
     A pure function of (the capture's bands and mesh, ``outdir``'s ``source``
@@ -195,7 +206,7 @@ def write_frame(capture, outdir, frame, source, texture_size, settings, referenc
     inputs = albedo_inputs(read_stage_maps(outdir, source, frame), bands)
     try:
         result = fit_frame(inputs, bands, _atlas(capture, texture_size), config, reference,
-                           free_melanin)
+                           free_melanin, progress)
     except ValueError as error:
         raise ValueError(f"bio, frame {frame} ({source} maps): {error}") from None
     channels = result.channels()
@@ -204,9 +215,22 @@ def write_frame(capture, outdir, frame, source, texture_size, settings, referenc
     write_exr(path, channels, overwrite=True,
               metadata={"stage": STAGE, "frame": int(frame), "source_stage": source,
                         "history": result.history, "seconds": round(result.seconds, 3),
+                        "noise": result.noise,
                         "held": [] if reference is None or free_melanin else ["C_m", "beta_m"]})
     write_bio_previews(channels, Path(outdir) / STAGE / "previews", frame)
     return channels
+
+
+class FitProgress:
+    """The fit's messages on a tqdm bar: a step advances it, a round's summary is its postfix."""
+
+    def __init__(self, bar):
+        self.bar = bar
+
+    def __call__(self, message):
+        if ", step " in message:
+            self.bar.update(1)
+        self.bar.set_postfix_str(message.removeprefix("bio "), refresh=True)
 
 
 class BioFrameTask:
@@ -226,8 +250,10 @@ class BioFrameTask:
             dr.set_thread_count(int(self.threads))
         capture = load_capture(self.capture_dir, check_images=False, frames=[])
         first = read_stage_maps(self.outdir, STAGE, next(iter(self.sources)))
+        reference = {name: first[name] for name in first
+                     if name in PARAMETERS or name in (f"{n}_std" for n in PARAMETERS)}
         write_frame(capture, self.outdir, frame, self.sources[frame], self.texture_size,
-                    self.settings, {name: first[name] for name in PARAMETERS})
+                    self.settings, reference)
         return {"frame": int(frame), "seconds": round(time.perf_counter() - started, 3)}
 
 
@@ -251,7 +277,12 @@ def run_bio_stage(capture, outdir, texture_size, settings=None, *, resume=False,
     first = frames[0]
     path = outdir / stage_map_path(STAGE, first)
     if not (resume and path.is_file()):
-        write_frame(capture, outdir, first, sources[first], texture_size, settings)
+        config, _ = bio_config(settings)
+        # the first frame runs for minutes at 256^2 and up: a bar over its Gauss-Newton steps
+        with tqdm(total=config.rounds * config.iterations, desc=f"{label} frame {first}", unit="step",
+                  disable=not progress) as bar:
+            write_frame(capture, outdir, first, sources[first], texture_size, settings,
+                        progress=FitProgress(bar))
     register_map(outdir, STAGE, first, read_exr(path)[0])
     later = [t for t in frames[1:]
              if not (resume and (outdir / stage_map_path(STAGE, t)).is_file())]

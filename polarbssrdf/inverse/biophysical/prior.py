@@ -1,0 +1,348 @@
+"""The biophysical stage's prior and the posterior spread it leads to (issue 20, items 3-4).
+
+Each chromophore map ``x`` is a Gaussian Markov random field around a face
+mean ``mu``: a Matérn field of Lindgren, Rue and Lindström (J. R. Stat. Soc.
+B 73, 2011, eq. 2), the solution of ``(1 - l^2 Laplacian)^(alpha/2) x = white
+noise``, on the texel grid. Its negative log density is
+
+    1/2 (x - mu)^T Q (x - mu),   Q = W A^order / tau^2 (order 1),  A^T W A / tau^2 (order 2),
+
+``A = I + l^2 W^-1 L``, with ``W`` the texel areas (mm^2), ``L`` the graph
+Laplacian of neighbouring surface texels (pair weight ``h_perp / h_along``,
+so ``W^-1 L`` is the Laplacian in mm^-2) and ``l`` the correlation length
+(mm). The fit uses order 1 (alpha = 1): order 2 is smoother but its precision's
+condition number grows as ``(l / h)^4``, which conjugate gradients cannot
+afford at 256^2 and up (a sparse direct solve took 65-140 s per step on 2
+cores at 256^2); order 1's grows as ``(l / h)^2``. Its marginal
+standard deviation is the within-face spread ``s``
+(:func:`precision_scale`). The face mean has a hyperprior: Gaussian around
+the mean of Table 2's eight rows with their spread across rows
+(:func:`population_prior`), so a chromophore the bands cannot tell falls back
+to a constant at the face's best-supported mean, and a face off the Table 2
+means is free to say so where the data speak.
+
+Posterior spread (:func:`posterior_covariance`): for a texel whose data
+precision ``C`` (k x k, the Gauss-Newton normal matrix of its bands) is
+locally constant, the posterior covariance of a stationary field is the
+average over spatial frequencies of ``(C + q(omega))^-1``, with ``q`` the
+prior's symbol ``area (1 + l^2 lambda / area)^order / tau^2`` (``lambda`` the
+lattice Laplacian's symbol), averaged over the lattice spectrum binned in
+``ln lambda``; the face mean's own uncertainty is added through the constant
+mode (:func:`mean_mode_covariance`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+
+from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD
+
+DEFAULT_CORRELATION_MM = 5.0
+"""Correlation length of the chromophore fields (mm): melanin and blood vary over
+millimetres to centimetres on a face (freckles, flushing), not from texel to texel."""
+
+SPECTRUM_BINS = 48
+"""Bins (in ``ln lambda``) of the lattice spectrum :func:`posterior_covariance` averages over."""
+
+
+def population_prior(names=("C_m", "beta_m", "C_h_out", "C_h_in")):
+    """``name -> (mean, std)`` of a face's mean value: the mean and the spread (ddof 0) of
+    Table 2's eight rows (supplement Table 2; volume fractions)."""
+
+    return {n: (float(np.mean([getattr(p, n) for p in TABLE2.values()])),
+                float(np.std([getattr(p, n) for p in TABLE2.values()]))) for n in names}
+
+
+def within_face_spread(names=("C_m", "beta_m", "C_h_out", "C_h_in")):
+    """``name -> std`` of a chromophore over one face region: the mean over Table 2's rows of
+    their "(std)" (supplement Table 2; volume fractions)."""
+
+    return {n: float(np.mean([row[n] for row in TABLE2_STD.values()])) for n in names}
+
+
+def precision_scale(std, correlation_mm, area_mm2, order=1):
+    """``tau^2`` of ``Q = A^T W A / tau^2`` whose marginal standard deviation is ``std``.
+
+    The prior alone has variance ``tau^2 / area`` times
+    :func:`prior_variance_factor` (:func:`posterior_covariance` with ``C = 0``),
+    about ``tau^2 / (area + 4 pi l^2)`` for ``l`` well above the texel size.
+    ``area_mm2``: a typical texel's area (the median)."""
+
+    return float(std) ** 2 * float(area_mm2) / float(prior_variance_factor(correlation_mm, area_mm2, order))
+
+
+def neighbour_pairs(surface, texel_size_mm):
+    """``(first, second, weight)`` of horizontally and vertically neighbouring surface texels
+    (flat indices into the (T, T) grid); ``weight = h_perp / h_along`` (dimensionless)."""
+
+    T = surface.shape[0]
+    index = np.arange(T * T).reshape(T, T)
+    sizes = np.asarray(texel_size_mm, np.float64).reshape(T * T, 2)
+    flat = surface.ravel()
+    firsts, seconds, weights = [], [], []
+    for along, (a, b) in enumerate(((index[:, :-1], index[:, 1:]), (index[:-1, :], index[1:, :]))):
+        a, b = a.ravel(), b.ravel()
+        both = flat[a] & flat[b]
+        a, b = a[both], b[both]
+        h_along = 0.5 * (sizes[a, along] + sizes[b, along])
+        h_perp = 0.5 * (sizes[a, 1 - along] + sizes[b, 1 - along])
+        firsts.append(a)
+        seconds.append(b)
+        weights.append(h_perp / np.maximum(h_along, 1e-9))
+    return np.concatenate(firsts), np.concatenate(seconds), np.concatenate(weights)
+
+
+class SpatialPrior:
+    """The unit Matérn precision over the surface texels (see the module docstring).
+
+    Parameters
+    ----------
+    surface : (T, T) bool
+    texel_size_mm : (T, T, 2) float
+        Texel extent along u and v (mm), the atlas's ``texel_size_mm``.
+    correlation_mm : float
+        Correlation length ``l``.
+    order : {1, 2}
+        ``alpha`` of the Matérn field (module docstring).
+
+    Attributes
+    ----------
+    index : (n,) int
+        Flat grid index of each surface texel (the prior's unknowns, in this order).
+    area : (n,) float
+        Texel areas (mm^2).
+    unit : (n, n) sparse
+        ``W A`` (order 1) or ``A^T W A`` (order 2); divide by ``tau^2`` for a map's precision.
+    """
+
+    def __init__(self, surface, texel_size_mm, correlation_mm=DEFAULT_CORRELATION_MM, order=2):
+        if order not in (1, 2):
+            raise ValueError(f"order must be 1 or 2, got {order!r}")
+        self.order = int(order)
+        if not correlation_mm > 0:
+            raise ValueError(f"correlation_mm must be > 0, got {correlation_mm!r}")
+        surface = np.asarray(surface, bool)
+        self.shape = surface.shape
+        self.correlation_mm = float(correlation_mm)
+        self.index = np.flatnonzero(surface.ravel())
+        n = len(self.index)
+        sizes = np.asarray(texel_size_mm, np.float64).reshape(-1, 2)[self.index]
+        self.area = np.maximum(sizes[:, 0] * sizes[:, 1], 1e-12)
+        self.texel_area = float(np.median(self.area))
+        position = np.full(surface.size, -1)
+        position[self.index] = np.arange(n)
+        first, second, weight = neighbour_pairs(surface, texel_size_mm)
+        a, b = position[first], position[second]
+        degree = np.bincount(a, weights=weight, minlength=n) + np.bincount(b, weights=weight, minlength=n)
+        off = sparse.coo_matrix((-weight, (a, b)), shape=(n, n))
+        laplacian = (off + off.T + sparse.diags(degree)).tocsr()
+        l2 = self.correlation_mm ** 2
+        if self.order == 1:
+            self.unit = (sparse.diags(self.area) + l2 * laplacian).tocsr()
+        else:
+            inverse_area = sparse.diags(1.0 / self.area)
+            self.unit = (sparse.diags(self.area) + 2.0 * l2 * laplacian
+                         + l2 * l2 * (laplacian @ inverse_area @ laplacian)).tocsr()
+
+    def tau2(self, std):
+        """``tau^2`` of a map whose marginal spread is ``std`` (:func:`precision_scale`)."""
+        return precision_scale(std, self.correlation_mm, self.texel_area, self.order)
+
+    def energy(self, deviation, tau2):
+        """``1/2 d^T Q d`` and its gradient ``Q d`` for a deviation ``d`` (n,) from the mean."""
+        gradient = (self.unit @ deviation) / tau2
+        return 0.5 * float(deviation @ gradient), gradient
+
+
+_SPECTRUM = {}
+
+
+def lattice_spectrum(bins=SPECTRUM_BINS, grid=1024):
+    """Nodes and weights ``(lambda, weight)`` of the square lattice Laplacian's spectrum.
+
+    ``lambda = 4 (sin^2(theta_u / 2) + sin^2(theta_v / 2))`` (the unit-spacing
+    5-point Laplacian's symbol, in [0, 8]) over the Brillouin zone, binned in
+    ``ln lambda``: ``sum weight f(lambda)`` is the zone average of a function
+    smooth in ``ln lambda``. Cached per ``(bins, grid)``."""
+
+    key = (int(bins), int(grid))
+    if key not in _SPECTRUM:
+        theta = (np.arange(grid) + 0.5) * np.pi / grid  # midpoints of (0, pi): the zone by symmetry
+        half = np.sin(theta / 2.0) ** 2
+        values = 4.0 * (half[:, None] + half[None, :]).ravel()
+        edges = np.geomspace(values.min(), 8.0 + 1e-9, int(bins) + 1)
+        which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, int(bins) - 1)
+        count = np.bincount(which, minlength=int(bins)).astype(np.float64)
+        total = np.bincount(which, weights=values, minlength=int(bins))
+        keep = count > 0
+        _SPECTRUM[key] = (total[keep] / count[keep], count[keep] / values.size)
+    return _SPECTRUM[key]
+
+
+def prior_variance_factor(correlation_mm, area_mm2, order=1):
+    """Zone average of ``1 / (1 + l^2 lambda / area)^order``: the prior's marginal variance is this
+    times ``tau^2 / area``."""
+
+    lam, weight = lattice_spectrum()
+    area = np.asarray(area_mm2, np.float64)
+    return np.sum(weight[:, None] / (1.0 + float(correlation_mm) ** 2 * lam[:, None] / np.ravel(area)[None, :]) ** order,
+                  axis=0).reshape(area.shape)
+
+
+def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1):
+    """Per-texel posterior covariance ``(n, k, k)`` of k Matérn maps given local data precision.
+
+    Parameters
+    ----------
+    data_precision : (n, k, k)
+        ``C``, the Gauss-Newton normal matrix of each texel's data (in the maps' units^-2).
+    area_mm2 : (n,)
+        Texel areas.
+    tau2 : (k,)
+        The maps' ``tau^2`` (:func:`precision_scale`); ``inf`` for a map without a prior.
+    correlation_mm : float
+    order : {1, 2}
+        The prior's order (:class:`SpatialPrior`).
+
+    Returns the zone average of ``(C + diag(area (1 + l^2 lambda / area)^order / tau^2))^-1``
+    over the lattice spectrum (:func:`lattice_spectrum`): exact for a field on
+    an unbounded grid of equal square texels and data constant in space; a
+    texel at the surface's edge (fewer neighbours) is more uncertain than this
+    says. Excludes the face mean's own uncertainty (:func:`mean_mode_covariance`).
+    """
+
+    C = np.asarray(data_precision, np.float64)
+    n, k, _ = C.shape
+    area = np.asarray(area_mm2, np.float64)
+    lam, weight = lattice_spectrum()
+    inverse_tau2 = 1.0 / np.asarray(tau2, np.float64)
+    l2 = float(correlation_mm) ** 2
+    out = np.zeros_like(C)
+    eye = np.eye(k)
+    for value, fraction in zip(lam, weight):
+        prior = (area * (1.0 + l2 * value / area) ** order)[:, None] * inverse_tau2[None, :]
+        # a map without a prior (tau2 inf) gets a vanishing ridge so the block stays invertible
+        out += fraction * np.linalg.inv(C + prior[:, :, None] * eye + 1e-30 * eye)
+    return out
+
+
+def expected_prior_energy(data_precision, area_mm2, tau2, correlation_mm, order=1):
+    """Per texel and map ``(n, k)``: the posterior expectation of a deviation's share of
+    ``d^T U d`` (``U`` the unit precision, ``Q = U / tau^2``) beyond its posterior mean's.
+
+    The zone average of ``u(lambda) [(C + diag(u(lambda) / tau^2))^-1]_mm`` with
+    ``u = area (1 + l^2 lambda / area)^order``: summed over texels, the trace
+    ``tr(U Sigma)`` of the expectation-maximization update of ``tau^2``
+    (:func:`updated_spread`)."""
+
+    C = np.asarray(data_precision, np.float64)
+    n, k, _ = C.shape
+    area = np.asarray(area_mm2, np.float64)
+    lam, weight = lattice_spectrum()
+    inverse_tau2 = 1.0 / np.asarray(tau2, np.float64)
+    l2 = float(correlation_mm) ** 2
+    out = np.zeros((n, k))
+    eye = np.eye(k)
+    for value, fraction in zip(lam, weight):
+        unit = area * (1.0 + l2 * value / area) ** order
+        prior = unit[:, None] * inverse_tau2[None, :]
+        inverse = np.linalg.inv(C + prior[:, :, None] * eye + 1e-30 * eye)
+        out += fraction * unit[:, None] * np.einsum("nii->ni", inverse)
+    return out
+
+
+def updated_spread(deviation, unit, expected_energy, tau2, std):
+    """The expectation-maximization update of a map's spread: ``(tau2, std)``.
+
+    ``tau2_new = (d^T U d + tr(U Sigma)) / n`` for the posterior mean's deviation
+    ``d`` (n,) from the face mean, ``U`` the unit precision and ``tr(U Sigma)``
+    the sum of :func:`expected_prior_energy` (Dempster, Laird and Rubin, J. R.
+    Stat. Soc. B 39, 1977: the M step of a Gaussian's scale). Where the data do
+    not tell the map, the posterior is the prior, the update returns about the
+    spread it was given; where they do, it moves to the spread the data show."""
+
+    n = len(deviation)
+    new_tau2 = (float(deviation @ (unit @ deviation)) + float(np.sum(expected_energy))) / max(n, 1)
+    return new_tau2, float(std) * np.sqrt(new_tau2 / float(tau2))
+
+
+def mean_mode_covariance(data_precision, area_mm2, tau2, mean_variance):
+    """Per-texel covariance ``(n, k, k)`` that the face means' uncertainty adds.
+
+    The means ``mu`` (k,) have a Gaussian hyperprior of variance
+    ``mean_variance`` (k,; 0 for a map whose mean is fixed). Through the
+    constant spatial mode (prior symbol ``D_i = area_i / tau^2``), a change of
+    ``mu`` moves texel ``i`` by ``M_i = (C_i + D_i)^-1 D_i``; ``mu``'s
+    posterior precision is ``S = sum_i (D_i - D_i M_i) + diag(1 / mean_variance)``,
+    and the texel's covariance gains ``M_i S^-1 M_i^T``. Returns it and ``S^-1``.
+    """
+
+    C = np.asarray(data_precision, np.float64)
+    n, k, _ = C.shape
+    mean_variance = np.asarray(mean_variance, np.float64)
+    free = mean_variance > 0
+    if not free.any():
+        return np.zeros_like(C), np.zeros((k, k))
+    D = (np.asarray(area_mm2, np.float64)[:, None] / np.asarray(tau2, np.float64)[None, :])
+    D[:, ~free] = 0.0
+    Dm = D[:, :, None] * np.eye(k)
+    M = np.linalg.solve(C + Dm + 1e-30 * np.eye(k), Dm)
+    S = np.sum(Dm - Dm @ M, axis=0)
+    S[np.ix_(~free, ~free)] = np.eye(int((~free).sum()))
+    S[np.ix_(free, ~free)] = 0.0
+    S[np.ix_(~free, free)] = 0.0
+    S[free, free] += 1.0 / mean_variance[free]
+    covariance = np.linalg.inv(S)
+    covariance[~free, :] = 0.0
+    covariance[:, ~free] = 0.0
+    return M @ covariance @ np.swapaxes(M, 1, 2), covariance
+
+
+class FourierPreconditioner:
+    """``P^-1`` for the Gauss-Newton system ``C + Q``: its exact inverse for constant data.
+
+    ``P`` replaces each texel's data block by their mean ``C_mean`` (k x k)
+    and the prior by the same Matérn operator on the whole periodic texture
+    grid (texels of the median area), so it is diagonal in the 2-D discrete
+    Fourier basis: per frequency, the k x k block ``C_mean + diag(q(omega) /
+    tau^2)`` with ``q`` the lattice symbol of :func:`posterior_covariance`.
+    Conjugate gradients then iterate only on how much the data vary over the
+    face; block-Jacobi would iterate on the prior's condition number, which
+    grows as ``(l / h)^(2 order)``.
+
+    Parameters
+    ----------
+    shape : (T, T)
+    index : (n,) int
+        Flat grid index of each unknown (the prior's surface texels).
+    area_mm2 : float
+    tau2 : (k,) float (``inf``: a map without a prior)
+    mean_block : (k, k)
+    correlation_mm : float
+    order : {1, 2}
+    """
+
+    def __init__(self, shape, index, area_mm2, tau2, mean_block, correlation_mm, order=1):
+        self.shape = tuple(shape)
+        self.index = np.asarray(index)
+        rows, cols = self.shape
+        fu = np.fft.fftfreq(rows)[:, None]
+        fv = np.fft.rfftfreq(cols)[None, :]
+        lam = 4.0 * (np.sin(np.pi * fu) ** 2 + np.sin(np.pi * fv) ** 2)
+        symbol = area_mm2 * (1.0 + float(correlation_mm) ** 2 * lam / area_mm2) ** order
+        inverse_tau2 = np.where(np.isfinite(tau2), 1.0 / np.asarray(tau2, np.float64), 0.0)
+        k = len(inverse_tau2)
+        block = (np.asarray(mean_block, np.float64)[None, None]
+                 + (symbol[..., None] * inverse_tau2)[..., None] * np.eye(k) + 1e-30 * np.eye(k))
+        self.inverse = np.linalg.inv(block)
+
+    def __call__(self, x):
+        """``P^-1 x`` for ``x`` (n, k) over the unknowns."""
+        n, k = x.shape
+        grid = np.zeros((self.shape[0] * self.shape[1], k))
+        grid[self.index] = x
+        spectrum = np.fft.rfft2(grid.reshape(*self.shape, k), axes=(0, 1))
+        spectrum = np.einsum("uvij,uvj->uvi", self.inverse, spectrum)
+        out = np.fft.irfft2(spectrum, s=self.shape, axes=(0, 1)).reshape(-1, k)
+        return out[self.index]

@@ -1,0 +1,158 @@
+"""The biophysical prior and posterior spread against dense linear algebra (NumPy only, about 10 s)."""
+
+import numpy as np
+import pytest
+
+from polarbssrdf.inverse.biophysical.prior import (
+    FourierPreconditioner,
+    SpatialPrior,
+    mean_mode_covariance,
+    population_prior,
+    posterior_covariance,
+    within_face_spread,
+)
+from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD
+
+T, H, L = 40, 0.5, 2.0  # texels, texel size (mm), correlation length (mm)
+
+
+def grid_prior(order, texels=T):
+    surface = np.ones((texels, texels), bool)
+    return SpatialPrior(surface, np.full((texels, texels, 2), H), L, order)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_the_prior_alone_has_the_marginal_spread_asked_for(order):
+    """diag(Q^-1) at the grid's centre = std^2 (the lattice spectrum's scale, not a fitted one)."""
+    prior = grid_prior(order)
+    std = 0.01
+    covariance = np.linalg.inv(prior.unit.toarray() / prior.tau2(std))
+    centre = (T // 2) * T + T // 2
+    assert np.sqrt(covariance[centre, centre]) == pytest.approx(std, rel=0.01)
+    # farther from the centre the field is as uncertain; at a corner (2 neighbours) more so
+    assert covariance[0, 0] > covariance[centre, centre]
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_posterior_covariance_matches_the_dense_inverse_for_two_correlated_maps(order):
+    """Two maps whose data are 80% correlated per texel: the quadrature's (k x k) covariance
+    at the centre texel against ``(C (x) I + Q)^-1`` of the whole grid."""
+    prior = grid_prior(order)
+    n = T * T
+    tau2 = np.array([prior.tau2(0.01), prior.tau2(0.02)])
+    sigma = np.array([0.004, 0.01])
+    correlation = 0.8
+    data_covariance = np.array([[sigma[0] ** 2, correlation * sigma[0] * sigma[1]],
+                                [correlation * sigma[0] * sigma[1], sigma[1] ** 2]])
+    C = np.linalg.inv(data_covariance)
+    Q = prior.unit.toarray()
+    H_dense = np.kron(np.eye(n), C) + np.kron(Q, np.diag(1.0 / tau2))
+    centre = (T // 2) * T + T // 2
+    rows = [2 * centre, 2 * centre + 1]
+    unit = np.zeros((2 * n, 2))
+    unit[rows, [0, 1]] = 1.0
+    dense = np.linalg.solve(H_dense, unit)[rows]
+    quadrature = posterior_covariance(C[None], np.array([H * H]), tau2, L, order)[0]
+    np.testing.assert_allclose(np.sqrt(np.diag(quadrature)), np.sqrt(np.diag(dense)), rtol=0.02)
+    assert quadrature[0, 1] / np.sqrt(quadrature[0, 0] * quadrature[1, 1]) == pytest.approx(
+        dense[0, 1] / np.sqrt(dense[0, 0] * dense[1, 1]), abs=0.02)
+    # the prior narrows what the data alone allow; the data narrow the prior
+    assert np.all(np.diag(quadrature) < np.diag(data_covariance))
+    assert np.all(np.diag(quadrature) < [0.01 ** 2, 0.02 ** 2])
+
+
+def test_the_face_mean_adds_its_uncertainty_through_the_constant_mode():
+    """A free face mean with a hyperprior: the texel's total variance against the dense joint
+    inverse over (field, mean)."""
+    prior = grid_prior(2, texels=24)
+    n = prior.unit.shape[0]
+    std, mean_std, data_std = 0.01, 0.02, 0.03
+    tau2 = prior.tau2(std)
+    Q = prior.unit.toarray() / tau2
+    c = 1.0 / data_std ** 2
+    ones = np.ones(n)
+    joint = np.zeros((n + 1, n + 1))
+    joint[:n, :n] = Q + c * np.eye(n)
+    joint[:n, n] = joint[n, :n] = -Q @ ones
+    joint[n, n] = ones @ Q @ ones + 1.0 / mean_std ** 2
+    dense = np.linalg.inv(joint)
+    centre = (24 // 2) * 24 + 24 // 2
+    C = np.full((n, 1, 1), c)
+    field = posterior_covariance(C, prior.area, [tau2], L, 2)
+    extra, mean_covariance = mean_mode_covariance(C, prior.area, [tau2], [mean_std ** 2])
+    assert np.sqrt(mean_covariance[0, 0]) == pytest.approx(np.sqrt(dense[n, n]), rel=0.05)
+    total = field[centre, 0, 0] + extra[centre, 0, 0]
+    assert np.sqrt(total) == pytest.approx(np.sqrt(dense[centre, centre]), rel=0.05)
+    # a fixed mean adds nothing
+    none, _ = mean_mode_covariance(C, prior.area, [tau2], [0.0])
+    assert np.all(none == 0)
+
+
+def test_the_fourier_preconditioner_inverts_the_system_for_constant_data():
+    """On a periodic texture the preconditioner is the exact inverse; on the bounded grid it is
+    close in the interior, which is what makes conjugate gradients converge in tens of steps."""
+    prior = grid_prior(2)
+    tau2 = np.array([prior.tau2(0.01)])
+    C = np.array([[1e4]])
+    P = FourierPreconditioner((T, T), prior.index, H * H, tau2, C, L, 2)
+    rng = np.random.default_rng(3)
+    field = rng.standard_normal((T, T))
+    # a smooth field well inside the grid
+    yy, xx = np.mgrid[:T, :T]
+    x = (np.exp(-((yy - T / 2) ** 2 + (xx - T / 2) ** 2) / 30.0) * (1 + 0.1 * field)).reshape(-1, 1)
+    Hx = C[0, 0] * x + (prior.unit @ x) / tau2[0]
+    recovered = P(Hx)
+    inside = (np.abs(yy - T / 2) < T / 4) & (np.abs(xx - T / 2) < T / 4)
+    error = np.abs(recovered - x).ravel()[inside.ravel()]
+    assert np.max(error) < 0.05 * np.max(np.abs(x))
+
+
+def test_population_prior_and_within_face_spread_come_from_table2():
+    hyper = population_prior()
+    spread = within_face_spread()
+    for name in ("C_m", "beta_m", "C_h_out", "C_h_in"):
+        means = [getattr(p, name) for p in TABLE2.values()]
+        assert hyper[name][0] == pytest.approx(np.mean(means))
+        assert hyper[name][1] == pytest.approx(np.std(means))
+        assert spread[name] == pytest.approx(np.mean([row[name] for row in TABLE2_STD.values()]))
+        # the population spread of the face mean is wider than one face's own
+        assert hyper[name][1] > spread[name]
+
+
+def test_the_gauss_newton_step_solves_the_joint_system_of_maps_and_face_means():
+    """_solve_step (CG, Fourier preconditioned) against the dense solve of the system over two
+    maps and their free face means, with data blocks that vary over the grid."""
+    from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
+    from polarbssrdf.inverse.biophysical.fit import PriorTerms, _solve_step
+
+    texels = 20
+    prior = grid_prior(2, texels)
+    n = texels * texels
+    config = BiophysicalConfig(prior_std={"C_m": 0.004, "C_h_out": 0.01},
+                               prior_mean={"C_m": [0.05, 0.02], "C_h_out": [0.07, 0.03]})
+    terms = PriorTerms(["C_m", "C_h_out"], prior, config, {"C_m": 0.05, "C_h_out": 0.07})
+    rng = np.random.default_rng(11)
+    J = rng.standard_normal((n, 6, 2)) * np.array([300.0, 100.0]) * rng.uniform(0.5, 2.0, (n, 1, 1))
+    blocks = np.einsum("nbi,nbj->nij", J, J)
+    rhs_x, rhs_mu = rng.standard_normal((n, 2)), rng.standard_normal(2)
+    step, step_mu = _solve_step(blocks, terms, rhs_x, rhs_mu, damping=0.0, rtol=1e-8, max_iterations=2000)
+    Q = prior.unit.toarray()
+    inverse_tau2 = 1.0 / terms.tau2
+    dense = np.zeros((2 * n + 2, 2 * n + 2))
+    dense[:2 * n, :2 * n] = _block_diagonal(blocks) + np.kron(Q, np.diag(inverse_tau2))
+    for m in range(2):
+        coupling = -(Q @ np.ones(n)) * inverse_tau2[m]
+        dense[np.arange(n) * 2 + m, 2 * n + m] = coupling
+        dense[2 * n + m, np.arange(n) * 2 + m] = coupling
+        dense[2 * n + m, 2 * n + m] = np.ones(n) @ Q @ np.ones(n) * inverse_tau2[m] + 1.0 / terms.mean_variance[m]
+    solution = np.linalg.solve(dense, np.concatenate([rhs_x.ravel(), rhs_mu]))
+    np.testing.assert_allclose(step.ravel(), solution[:2 * n], rtol=1e-4, atol=1e-6 * np.abs(solution).max())
+    np.testing.assert_allclose(step_mu, solution[2 * n:], rtol=1e-4, atol=1e-6 * np.abs(solution).max())
+
+
+def _block_diagonal(blocks):
+    n, k, _ = blocks.shape
+    out = np.zeros((n * k, n * k))
+    for i in range(n):
+        out[i * k:(i + 1) * k, i * k:(i + 1) * k] = blocks[i]
+    return out
