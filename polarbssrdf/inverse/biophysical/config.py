@@ -91,17 +91,31 @@ class BiophysicalConfig:
         The Matérn fields' ``alpha`` (:class:`~polarbssrdf.inverse.biophysical.prior.SpatialPrior`):
         2 (default) is smooth at the texel scale and pools the data of a few
         correlation lengths; 1 is rougher and pools over a few texels only.
+    face_means : {"blocks", "joint"}
+        How each chromophore's face mean is found. ``"blocks"`` (default): the
+        albedo is averaged over blocks of ``mean_block_mm`` and inverted per
+        block (eq. 47), the blocks' mean combined with the ``prior_mean``
+        hyperprior and held during the fit (:func:`~polarbssrdf.inverse.biophysical.fit.block_face_means`).
+        ``"joint"``: the means are fitted with the maps; noise turned into bias
+        along the melanin-eumelanin ridge that way (bench/RESULTS.md).
+    hold_uninformed : bool
+        Hold a chromophore at its face mean when the bands tell less about it
+        than the prior does, even pooled over one correlation area
+        (:func:`~polarbssrdf.inverse.biophysical.fit.prior_dominated_maps`;
+        default ``true``); its std is then the prior spread.
+    mean_block_mm : float
+        Block size (mm) of ``face_means: "blocks"``.
     gain_std : float
         Spread of ``albedo_gain``, a band-common multiplicative error of the
         input albedo fitted as a nuisance map (Matérn, mean 1, the same
         correlation length); 0 leaves it out. The static stage's albedo error
         is 82% common to the bands on the demo face (bench/RESULTS.md).
     noise : {"fit", "fixed"}
-        ``"fit"`` (default): each band's relative noise starts at
-        ``albedo_noise`` and is re-estimated after every round from the
-        residuals (chi-square over the degrees of freedom the posterior
-        leaves), so the uncertainty is calibrated on the data; ``"fixed"``
-        keeps ``albedo_noise``.
+        ``"fit"`` (default): each band's own relative noise and the
+        band-common noise start at ``albedo_noise`` and ``common_noise`` and
+        are re-estimated after every round from the residuals (moments over the
+        degrees of freedom the posterior leaves), so the uncertainty is
+        calibrated on the data; ``"fixed"`` keeps the starts.
     smoothness : float or dict
         Weight of an extra smoothness penalty per map (one number for all, or
         ``name -> weight``): the mean over neighbouring texel pairs of the
@@ -109,7 +123,14 @@ class BiophysicalConfig:
         term. 0 by default (the Matérn prior smooths); ``prior="none"`` with
         ``smoothness=300`` is the fit before issue 20.
     albedo_noise : float
-        Relative noise of the albedo maps per band (the start when ``noise`` is ``"fit"``).
+        Relative noise of the albedo maps per band, independent between bands (the
+        start when ``noise`` is ``"fit"``).
+    common_noise : float
+        Relative noise shared by every band of a texel (the start when ``noise``
+        is ``"fit"``; 0 with ``"fixed"`` leaves it out): an error of the albedo's
+        level, such as the static stage's refractive index error makes
+        (d ln albedo / d eta = -1.24, flat over bands), which the chromophores
+        would otherwise take for a change of colour.
     start_texel_mm : float
         Block size (mm) of the start's per-texel inversion (a); 0 inverts at full resolution.
     bounds : dict
@@ -131,10 +152,14 @@ class BiophysicalConfig:
     correlation_mm: float = DEFAULT_CORRELATION_MM
     prior_order: int = 2
     gain_std: float = 0.03
+    face_means: str = "blocks"
+    hold_uninformed: bool = True
+    mean_block_mm: float = 16.0
     noise: str = "fit"
     spread: str = "fit"
     smoothness: object = 0.0
     albedo_noise: float = 0.01
+    common_noise: float = 0.01
     start_texel_mm: float = 2.0
     bounds: dict = dataclasses.field(default_factory=lambda: dict(INVERSION_BOUNDS))
     thickness_mm: float = 0.25
@@ -186,6 +211,11 @@ class BiophysicalConfig:
         check_string(self.prior, "prior", PRIORS)
         check_string(self.noise, "noise", NOISE_MODELS)
         check_string(self.spread, "spread", NOISE_MODELS)
+        check_string(self.face_means, "face_means", ("blocks", "joint"))
+        check_boolean(self.hold_uninformed, "hold_uninformed")
+        check_number(self.mean_block_mm, "mean_block_mm")
+        if not self.mean_block_mm > 0:
+            raise ValueError(f"mean_block_mm must be > 0 (mm), got {self.mean_block_mm!r}")
         check_number(self.correlation_mm, "correlation_mm")
         if not self.correlation_mm > 0:
             raise ValueError(f"correlation_mm must be > 0 (mm), got {self.correlation_mm!r}")
@@ -197,7 +227,7 @@ class BiophysicalConfig:
             raise ValueError(f"gain_std must be in [0, 1), got {self.gain_std!r}")
         self._check_prior_tables()
         self.smoothness_weights()  # validates
-        for name in ("kernel_tolerance", "albedo_noise", "start_texel_mm"):
+        for name in ("kernel_tolerance", "albedo_noise", "start_texel_mm", "common_noise"):
             check_number(getattr(self, name), name, minimum=0)
         check_number(self.tolerance, "tolerance", minimum=0)
         if not self.tolerance < 1:

@@ -12,18 +12,24 @@ b. the sum-of-Gaussians kernels of the five layer profiles (eq. 40, 43) fitted
    (:func:`polarbssrdf.render.subsurface.layer_profile_kernels`, the kernels
    synth renders with), homogeneous over the face (eq. 45);
 c. at full resolution, damped Gauss-Newton steps (or Adam, ``drjit.opt``; the
-   config's ``method``) on the four maps so that the eq. 46 rendering (:class:`~polarbssrdf.inverse.biophysical.model.BiophysicalModel`:
-   the texture-space layered blur of synth, differentiable) matches the input
-   (eq. 41), with an optional smoothness prior; clamped to the bounds after
-   every step;
-d. (b) and (c) repeated until the kernels change by less than
-   ``kernel_tolerance``.
+   config's ``method``) on the four maps, a band-common gain and the maps' face
+   means to the posterior mode of the eq. 46 rendering
+   (:class:`~polarbssrdf.inverse.biophysical.model.BiophysicalModel`: the
+   texture-space layered blur of synth, differentiable) against the input
+   (eq. 41) under the Matérn prior of :mod:`~polarbssrdf.inverse.biophysical.prior`;
+   clamped to the bounds after every step;
+d. the bands' noise and the maps' spreads re-estimated from the posterior, and
+   (b)-(d) repeated until the kernels change by less than ``kernel_tolerance``
+   and neither estimate moves by more than :data:`NOISE_TOLERANCE`;
+e. the posterior standard deviation of every map per texel
+   (:func:`posterior_blocks`).
 
 Input albedos are lobe albedos (``rho_sss`` of eq. 19, what the static stage
 recovers and synth's truth maps hold); the skin model's flux ``R_bar`` is
 ``c(eta) rho_sss`` (docs/biophysical.md). Texels whose input is not finite,
 outside [0, 1] or of confidence 0 in any band do not enter the data term,
-take values filled in from their valid neighbours and are flagged.
+take their values from the prior (or, without one, from their valid
+neighbours) and are flagged.
 """
 
 from __future__ import annotations
@@ -44,6 +50,7 @@ from polarbssrdf.inverse.biophysical.prior import (
     FourierPreconditioner,
     SpatialPrior,
     expected_prior_energy,
+    known_mean_covariance,
     mean_mode_covariance,
     posterior_covariance,
     updated_spread,
@@ -60,6 +67,10 @@ GAIN = "albedo_gain"
 """The band-common gain's map (unitless): the input albedo is modelled as ``gain * rendered``."""
 
 GAIN_BOUNDS = (0.5, 2.0)
+
+LEVEL_STD_FRACTION = 0.1
+"""A map whose face mean comes from the blocks keeps its own mean within this fraction of
+that estimate's std (a quadratic penalty on the mean deviation)."""
 
 NOISE_TOLERANCE = 0.05
 """Rounds stop once the kernels have settled and no band's noise estimate nor map's spread
@@ -145,15 +156,20 @@ def _block_mean(values, weight, factor):
         return vs / ws, ws > 0
 
 
-def start_maps(rbar, valid, atlas, bands, eta, config):
-    """Step (a): the per-texel inversion of eq. 47 on block means, upsampled; (T, T) maps."""
+def block_inversion(rbar, valid, atlas, bands, eta, config, block_mm):
+    """The per-texel inversion of eq. 47 on means over blocks of about ``block_mm``.
+
+    Returns ``(maps, ok, texels, factor)``: per block the four parameters
+    (NaN where the block has no valid texel), which blocks have one, how many
+    valid texels each holds, and the block size in texels."""
 
     T = valid.shape[0]
     texel = float(np.median(atlas.texel_size_mm[atlas.valid]))
-    factor = max(1, int(round(config.start_texel_mm / max(texel, 1e-9)))) if config.start_texel_mm > 0 else 1
+    factor = max(1, int(round(block_mm / max(texel, 1e-9)))) if block_mm > 0 else 1
     factor = min(factor, T)
     means, ok = _block_mean(rbar, valid, factor)
     eta_means, _ = _block_mean(eta, valid, factor)
+    texels = _block_mean(valid.astype(np.float64), np.ones_like(valid, dtype=np.float64), factor)[0] * factor ** 2
     # invert_bands takes one eta: invert texels in bins of START_ETA_STEP
     bins = np.round(eta_means / START_ETA_STEP) * START_ETA_STEP
     coarse_maps = {name: np.full(ok.shape, np.nan) for name in PARAMETERS}
@@ -163,6 +179,14 @@ def start_maps(rbar, valid, atlas, bands, eta, config):
                               eta=float(value), table_size="default")
         for name in PARAMETERS:
             coarse_maps[name][members] = getattr(result, name)
+    return coarse_maps, ok, texels, factor
+
+
+def start_maps(rbar, valid, atlas, bands, eta, config):
+    """Step (a): the per-texel inversion of eq. 47 on block means, upsampled; (T, T) maps."""
+
+    T = valid.shape[0]
+    coarse_maps, ok, _, factor = block_inversion(rbar, valid, atlas, bands, eta, config, config.start_texel_mm)
     out = {}
     for name in PARAMETERS:
         coarse = coarse_maps[name]
@@ -175,6 +199,33 @@ def start_maps(rbar, valid, atlas, bands, eta, config):
         low, high = config.bounds[name]
         out[name] = np.clip(fine, low, high)
     return out, factor
+
+
+MINIMUM_BLOCK_FILL = 0.5
+"""A block enters the face means if at least this fraction of its texels has valid input."""
+
+
+def block_face_means(rbar, valid, atlas, bands, eta, config):
+    """``name -> (mean, std of the mean)`` of each chromophore from blocks of ``mean_block_mm``.
+
+    Each block's albedo is averaged before it is inverted, so the per-texel
+    noise is averaged out before the model's curvature can turn it into bias
+    (inverting every texel and averaging the results moved ``beta_m``'s face
+    mean by +0.08 on the demo); the face mean is the texel-weighted mean of the
+    blocks' values, its std their weighted spread over the square root of the
+    number of blocks."""
+
+    maps, ok, texels, factor = block_inversion(rbar, valid, atlas, bands, eta, config, config.mean_block_mm)
+    full = ok & (texels >= MINIMUM_BLOCK_FILL * factor ** 2)
+    use = full if full.sum() >= 4 else ok
+    weight = texels[use]
+    out = {}
+    for name in PARAMETERS:
+        values = maps[name][use]
+        mean = float(np.sum(weight * values) / np.sum(weight))
+        spread = float(np.sqrt(np.sum(weight * (values - mean) ** 2) / np.sum(weight)))
+        out[name] = (mean, spread / np.sqrt(max(int(use.sum()) - 1, 1)))
+    return out
 
 
 def median_intensity_texel(observed, valid):
@@ -216,7 +267,8 @@ class FitLoss:
         self.weight = weight
         T = model.shape[0]
         self.observed = [to_jit(Float, observed[b].ravel(), np.float32) for b in range(len(model.bands))]
-        self.set_noise(np.full(len(model.bands), config.albedo_noise) if sigma is None else sigma)
+        self.set_noise(np.full(len(model.bands), config.albedo_noise) if sigma is None else sigma,
+                       config.common_noise)
         surface = model.atlas.valid
         index = np.arange(T * T).reshape(T, T)
         pairs = []
@@ -243,13 +295,25 @@ class FitLoss:
                                        dr.opaque(Float, config.bounds[name][1] - config.bounds[name][0]))
                                 for name, w in self.smoothness.items() if w > 0}
 
-    def set_noise(self, sigma):
-        """Set the bands' relative noise ``sigma`` (n_bands,) and the data term's weights."""
+    def set_noise(self, sigma, common):
+        """Set the bands' own relative noise ``sigma`` (n_bands,), the band-common relative
+        noise ``common`` and the data term's weights.
+
+        Per texel the relative residuals ``r`` have covariance ``diag(sigma^2) +
+        common^2 1 1^T``; in ``z_b = r_b / sigma_b`` its inverse is ``I - kappa v v^T``
+        with ``v_b = 1 / sigma_b`` and ``kappa = 1 / (1 / common^2 + sum_b v_b^2)``
+        (Sherman-Morrison)."""
         Float, _, _ = jit_types()
         self.sigma = np.asarray(sigma, np.float64)
+        self.common = float(common)
         scale = self.weight[None] / (self.sigma[:, None, None] * np.maximum(self.observed_numpy, 1e-3))
         self.scale_numpy = scale.reshape(len(self.sigma), -1)
         self.scale = [to_jit(Float, row, np.float32) for row in self.scale_numpy]
+        self.v = 1.0 / self.sigma
+        self.kappa = 0.0 if self.common <= 0 else 1.0 / (1.0 / self.common ** 2 + float(np.sum(self.v ** 2)))
+        # they change every round: kernel inputs, not literals
+        self._v_jit = [dr.opaque(Float, float(v)) for v in self.v]
+        self._kappa_jit = dr.opaque(Float, self.kappa)
 
     def data_terms(self, params):
         """Per band, the predicted albedo ``g A_b`` (flat Float)."""
@@ -261,9 +325,12 @@ class FitLoss:
         Float, _, _ = jit_types()
         predicted = predicted or self.data_terms(params)
         loss = Float(0.0)
+        common = Float(0.0)
         for b, value in enumerate(predicted):
-            r = (value - self.observed[b]) * self.scale[b]
-            loss += 0.5 * dr.sum(r * r)
+            z = (value - self.observed[b]) * self.scale[b]
+            loss += 0.5 * dr.sum(z * z)
+            common += z * self._v_jit[b]
+        loss -= 0.5 * self._kappa_jit * dr.sum(common * common)
         for name in PARAMETERS:
             if name in self._smoothness_jit:
                 weight, span = self._smoothness_jit[name]
@@ -299,9 +366,13 @@ def local_jacobian(model, maps, names):
 
 
 def data_precision(loss_fn, maps, names, movable):
-    """``(n, k, k)`` Gauss-Newton normal matrix ``sum_b s_b^2 J_b J_b^T`` of the movable texels."""
-    J = local_jacobian(loss_fn.model, maps, names)[movable]
-    return np.einsum("nbi,bn,nbj->nij", J, loss_fn.scale_numpy[:, movable] ** 2, J), J
+    """``(n, k, k)`` Gauss-Newton normal matrix ``J_z^T (I - kappa v v^T) J_z`` of the movable
+    texels (``J_z`` the Jacobian in the data term's ``z`` units, :meth:`FitLoss.set_noise`),
+    and ``J_z``."""
+    J = local_jacobian(loss_fn.model, maps, names)[movable] * loss_fn.scale_numpy[:, movable].T[:, :, None]
+    projected = np.einsum("nbi,b->ni", J, loss_fn.v)
+    precision = np.einsum("nbi,nbj->nij", J, J) - loss_fn.kappa * np.einsum("ni,nj->nij", projected, projected)
+    return precision, J
 
 
 def _evaluate(loss_fn, maps, names, fixed):
@@ -334,10 +405,14 @@ class PriorTerms:
     ``spatial``: :class:`~polarbssrdf.inverse.biophysical.prior.SpatialPrior` over
     the movable texels, or None (no prior). ``tau2`` per map (``inf``: none),
     the face means ``mu`` with their hyperprior ``(mean0, mean_variance)``
-    (variance 0: fixed, as the gain's mean of 1).
+    (variance 0: fixed, as the gain's mean of 1). ``block_means``: ``name ->
+    (mean, std)`` estimated from block-averaged albedo
+    (:func:`block_face_means`); such a mean is combined with the hyperprior and
+    held, its variance kept in ``known_variance`` for the posterior spread.
     """
 
-    def __init__(self, names, spatial, config, start_means):
+    def __init__(self, names, spatial, config, start_means, block_means=None):
+        block_means = block_means or {}
         self.names = list(names)
         self.spatial = spatial
         k = len(self.names)
@@ -346,11 +421,19 @@ class PriorTerms:
         self.mean_variance = np.zeros(k)
         self.mu = np.zeros(k)
         self.std = np.zeros(k)
+        self.known_variance = np.zeros(k)
         for i, name in enumerate(self.names):
             if name == GAIN:
                 std, (mean, mean_std), start = config.gain_std, (1.0, 0.0), 1.0
             else:
                 std, (mean, mean_std), start = config.prior_std[name], config.prior_mean[name], start_means[name]
+            if name in block_means:
+                # the blocks' estimate combined with the hyperprior, then held
+                block, block_std = block_means[name]
+                precision = 1.0 / max(block_std, 1e-12) ** 2 + (1.0 / mean_std ** 2 if mean_std > 0 else 0.0)
+                mean = (block / max(block_std, 1e-12) ** 2 + (mean / mean_std ** 2 if mean_std > 0 else 0.0)) / precision
+                self.known_variance[i] = 1.0 / precision
+                mean_std = 0.0
             self.mean0[i], self.mean_variance[i] = mean, mean_std ** 2
             self.mu[i] = start if mean_std > 0 else mean
             self.std[i] = std
@@ -358,6 +441,13 @@ class PriorTerms:
                 self.tau2[i] = spatial.tau2(std)
         self.free = self.mean_variance > 0
         self.active = np.isfinite(self.tau2)
+        # a mean from the blocks holds the map's own (area-weighted) mean there: without it
+        # the field's nearly free constant mode lets per-texel noise move the level again
+        self.level_precision = np.zeros(k)
+        if spatial is not None:
+            self.level_weights = spatial.area / spatial.area.sum()
+            held_level = self.known_variance > 0
+            self.level_precision[held_level] = 1.0 / (LEVEL_STD_FRACTION ** 2 * self.known_variance[held_level])
         if spatial is not None:
             self.ones_response = spatial.unit @ np.ones(len(spatial.index))  # Q 1 tau^2
             self.ones_energy = float(self.ones_response.sum())  # 1^T Q 1 tau^2
@@ -371,6 +461,9 @@ class PriorTerms:
         gradient = (self.spatial.unit @ deviation) * inverse_tau2[None, :]
         value = 0.5 * float(np.sum(deviation * gradient))
         mean_gradient = -gradient.sum(axis=0)
+        level = self.level_weights @ deviation  # (k,) the maps' mean deviation
+        value += 0.5 * float(np.sum(self.level_precision * level ** 2))
+        gradient = gradient + self.level_weights[:, None] * (self.level_precision * level)[None, :]
         free = self.free & self.active
         value += 0.5 * float(np.sum((mu[free] - self.mean0[free]) ** 2 / self.mean_variance[free]))
         mean_gradient[free] += (mu[free] - self.mean0[free]) / self.mean_variance[free]
@@ -423,6 +516,7 @@ def _solve_step(blocks, prior, rhs_x, rhs_mu, damping, max_iterations=200, rtol=
     damped_blocks = blocks + damping * (diagonal[:, :, None] * eye + 1e-12 * eye)
     mean_damped = mean_diagonal * (1.0 + damping)
     spatial = prior.spatial
+    level_weights = prior.level_weights
     fourier = FourierPreconditioner(spatial.shape, spatial.index, spatial.texel_area, prior.tau2,
                                     damped_blocks.mean(axis=0), spatial.correlation_mm, spatial.order)
 
@@ -430,7 +524,8 @@ def _solve_step(blocks, prior, rhs_x, rhs_mu, damping, max_iterations=200, rtol=
         x, mu = z[:n * k].reshape(n, k), z[n * k:]
         mu = np.where(free, mu, 0.0)
         y = (np.einsum("nij,nj->ni", damped_blocks, x) + (unit @ x) * inverse_tau2[None, :]
-             - q1[:, None] * (mu * inverse_tau2)[None, :])
+             - q1[:, None] * (mu * inverse_tau2)[None, :]
+             + level_weights[:, None] * (prior.level_precision * (level_weights @ x))[None, :])
         y_mu = np.where(free, -(q1 @ x) * inverse_tau2 + mean_damped * mu, z[n * k:])
         return np.concatenate([y.ravel(), y_mu])
 
@@ -535,27 +630,48 @@ def posterior_blocks(loss_fn, prior, maps, movable):
     covariance = posterior_covariance(C, area, prior.tau2, prior.spatial.correlation_mm, prior.spatial.order)
     mean_variance = np.where(prior.free & prior.active, prior.mean_variance, 0.0)
     extra, mean_covariance = mean_mode_covariance(C, area, prior.tau2, mean_variance)
+    if np.any(prior.known_variance > 0):
+        extra = extra + known_mean_covariance(C, area, prior.tau2, prior.known_variance)
+        mean_covariance = mean_covariance + np.diag(prior.known_variance)
     return covariance + extra, C, J, mean_covariance
 
 
 def calibrated_noise(loss_fn, predicted, covariance, J, movable):
-    """Per band ``(sigma, chi2, dof)``: the relative noise re-estimated from the residuals.
+    """``(sigma (n_bands,), common, figures)``: the noise re-estimated from the residuals.
 
-    ``sigma_b^2`` is scaled by ``chi2_b / (N_b - t_b)``: ``chi2_b`` the band's
-    weighted squared residuals, ``N_b`` its data terms and ``t_b =
-    sum_i s_b,i^2 J_b,i^T Sigma_i J_b,i`` the degrees of freedom the posterior
-    spends on them (the trace of the band's hat matrix); the estimate of
-    Gaussian noise under a Gaussian posterior (e.g. Gelman et al., Bayesian
-    Data Analysis, 3rd ed., sec. 7.2's effective number of parameters)."""
+    Per texel the relative residuals ``r_b`` split into their mean over bands
+    ``m`` (the band-common part) and the rest ``e_b``. For noise of covariance
+    ``diag(sigma^2) + common^2 1 1^T`` over ``B`` bands (equal ``sigma``),
+    ``E[e_b^2] = sigma_b^2 (B - 1) / B`` and ``E[m^2] = common^2 + mean(sigma^2) / B``.
+    Both moments are scaled by ``N / (N - t)``, ``t = sum_i tr(C_i Sigma_i)`` the
+    degrees of freedom the posterior spends on the data (the hat matrix's
+    trace; Gelman et al., Bayesian Data Analysis, 3rd ed., sec. 7.2's effective
+    number of parameters), ``N`` the data terms."""
 
-    scale = loss_fn.scale_numpy[:, movable]
-    residual = (np.stack([np.ravel(p) for p in predicted])[:, movable] - loss_fn.observed_numpy.reshape(
-        len(predicted), -1)[:, movable]) * scale
-    chi2 = np.sum(residual ** 2, axis=1)
-    count = np.sum(scale > 0, axis=1).astype(np.float64)
-    dof = np.einsum("bn,nbi,nij,nbj->b", scale ** 2, J, covariance, J)
-    ratio = chi2 / np.maximum(count - dof, 0.1 * count)
-    return loss_fn.sigma * np.sqrt(ratio), chi2, dof
+    B = len(predicted)
+    weight = loss_fn.scale_numpy[:, movable] > 0
+    observed = loss_fn.observed_numpy.reshape(B, -1)[:, movable]
+    relative = (np.stack([np.ravel(p) for p in predicted])[:, movable] - observed) / np.maximum(observed, 1e-3)
+    texels = np.all(weight, axis=0)
+    relative = relative[:, texels]
+    count = relative.size
+    precision, _ = _precision_from_jacobian(loss_fn, J)
+    dof = float(np.einsum("nij,nji->", precision[texels], covariance[texels]))
+    inflation = count / max(count - dof, 0.1 * count)
+    m = relative.mean(axis=0)
+    e = relative - m[None]
+    sigma2 = np.mean(e ** 2, axis=1) * B / (B - 1) * inflation
+    common2 = max(float(np.mean(m ** 2)) * inflation - float(np.mean(sigma2)) / B, 0.0)
+    figures = {"texels": int(texels.sum()), "dof_per_texel": dof / max(int(texels.sum()), 1),
+               "band_mean_rms": float(np.sqrt(np.mean(m ** 2))),
+               "band_rest_rms": [float(v) for v in np.sqrt(np.mean(e ** 2, axis=1))]}
+    return np.sqrt(sigma2), float(np.sqrt(common2)), figures
+
+
+def _precision_from_jacobian(loss_fn, J):
+    """The data precision per texel from ``J_z`` (:func:`data_precision`'s second output)."""
+    projected = np.einsum("nbi,b->ni", J, loss_fn.v)
+    return (np.einsum("nbi,nbj->nij", J, J) - loss_fn.kappa * np.einsum("ni,nj->nij", projected, projected)), projected
 
 
 def _optimize(loss_fn, prior, maps, held, config, movable, progress=None):
@@ -605,6 +721,32 @@ def _adam(loss_fn, prior, maps, held, config, movable):
     for n in names:
         out[n] = np.array(opt[n], dtype=np.float64).reshape(maps[n].shape)
     return out, first, last, []
+
+
+PRIOR_DOMINATED = 0.5
+"""A map whose posterior variance over one correlation area would stay above this fraction
+of its prior variance is held at its face mean (:func:`prior_dominated_maps`)."""
+
+
+def prior_dominated_maps(loss_fn, maps, names, texels, spatial, config):
+    """The chromophores the bands cannot tell even pooled over one correlation area.
+
+    With ``C`` the median data precision per texel (k x k, at the start maps,
+    with the other maps free) and ``P = 4 pi l^2 / area`` the texels in one
+    correlation area, the pooled posterior covariance is ``(P C + diag(1 /
+    s^2))^-1``; a map whose variance there exceeds :data:`PRIOR_DOMINATED`
+    times its prior ``s^2`` learns less from the data than from the prior, and
+    fitting it per texel turns the albedo's structured errors into spurious
+    patterns (``beta_m`` with six bands: 5x the constant map's error on the
+    demo). Such a map is held at its face mean, with the prior spread as its std."""
+
+    C, _ = data_precision(loss_fn, maps, names, texels)
+    typical = np.median(C, axis=0)
+    pooled = 4.0 * np.pi * spatial.correlation_mm ** 2 / spatial.texel_area
+    spread = np.array([config.gain_std if n == GAIN else config.prior_std[n] for n in names])
+    posterior = np.linalg.inv(pooled * typical + np.diag(1.0 / spread ** 2))
+    ratio = np.diag(posterior) / spread ** 2
+    return [n for n, r in zip(names, ratio) if n != GAIN and r > PRIOR_DOMINATED]
 
 
 def _start_means(maps, good):
@@ -699,8 +841,23 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     loss_fn = FitLoss(model, observed, good.astype(np.float64), config)
     spatial = (SpatialPrior(surface, atlas.texel_size_mm, config.correlation_mm, config.prior_order)
                if config.prior == "matern" else None)
-    prior = PriorTerms(names, spatial, config, _start_means(maps, good))
+    block_means = {}
+    if spatial is not None and config.face_means == "blocks":
+        block_means = {n: v for n, v in block_face_means(rbar, good, atlas, bands, eta, config).items()
+                       if n in names}
     movable = surface.ravel()  # the flat maps' unknowns, in the spatial prior's order
+    held_std = dict(held_std or {})
+    dominated = []
+    if spatial is not None and config.hold_uninformed:
+        dominated = prior_dominated_maps(loss_fn, maps, names, good.ravel(), spatial, config)
+        starts = _start_means(maps, good)
+        for name in dominated:
+            mean, mean_std = block_means.get(name, (starts[name], 0.0))
+            held[name] = maps[name] = np.full(shape, mean)
+            held_std[name] = np.full(shape, np.hypot(config.prior_std[name], mean_std), np.float32)
+        names = [n for n in names if n not in dominated]
+    prior = PriorTerms(names, spatial, config, _start_means(maps, good),
+                       {n: v for n, v in block_means.items() if n in names})
     texel = median_intensity_texel(observed, good)
     kernels = fit_kernels(maps, texel, bands, eta, config)
     history = []
@@ -728,11 +885,12 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
                                             for n in maps})
             predicted = [np.array(p, dtype=np.float64) for p in predicted]
             covariance, _, J, _ = posterior_blocks(loss_fn, prior, maps, movable)
-            sigma, chi2, dof = calibrated_noise(loss_fn, predicted, covariance, J, movable)
+            sigma, common, figures = calibrated_noise(loss_fn, predicted, covariance, J, movable)
             noise_change = float(np.max(np.abs(np.log(sigma / loss_fn.sigma))))
-            entry.update(noise=[float(v) for v in sigma], chi2=[float(v) for v in chi2],
-                         dof=[float(v) for v in dof])
-            loss_fn.set_noise(sigma)
+            if loss_fn.common > 0 or common > 0:
+                noise_change = max(noise_change, abs(np.log(max(common, 1e-6) / max(loss_fn.common, 1e-6))))
+            entry.update(noise=[float(v) for v in sigma], common_noise=common, residuals=figures)
+            loss_fn.set_noise(sigma, common)
         if config.spread == "fit" and config.method == "gauss_newton" and spatial is not None:
             C, _ = data_precision(loss_fn, maps, names, movable)
             noise_change = max(noise_change, prior.update_spreads(maps, C, movable))
@@ -765,9 +923,12 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     out = {n: maps[n].astype(np.float32) for n in PARAMETERS}
     if with_gain:
         out[GAIN] = maps[GAIN].astype(np.float32)
-    means = {n: {"mean": float(prior.mu[k]), "std": float(np.sqrt(max(mean_covariance[k, k], 0.0)))}
-             for k, n in enumerate(names) if prior.free[k]}
+    means = {n: {"mean": float(prior.mu[k]), "std": float(np.sqrt(max(mean_covariance[k, k], 0.0))),
+                 "from": "blocks" if n in block_means else "joint"}
+             for k, n in enumerate(names) if prior.free[k] or n in block_means}
     noise = {"relative_sigma": {b.name: float(s) for b, s in zip(bands, loss_fn.sigma)},
+             "held_at_face_mean": dominated,
+             "common_relative_sigma": loss_fn.common,
              "model": config.noise, "face_means": means,
              "spread": {n: float(v) for n, v in zip(names, prior.std)}}
     return BiophysicalResult(out, residual.astype(np.float32), flagged, kernels, history,

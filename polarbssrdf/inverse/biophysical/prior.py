@@ -200,7 +200,7 @@ def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1
     area_mm2 : (n,)
         Texel areas.
     tau2 : (k,)
-        The maps' ``tau^2`` (:func:`precision_scale`); ``inf`` for a map without a prior.
+        The maps' ``tau^2`` (:func:`precision_scale`), finite.
     correlation_mm : float
     order : {1, 2}
         The prior's order (:class:`SpatialPrior`).
@@ -212,19 +212,35 @@ def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1
     says. Excludes the face mean's own uncertainty (:func:`mean_mode_covariance`).
     """
 
-    C = np.asarray(data_precision, np.float64)
-    n, k, _ = C.shape
-    area = np.asarray(area_mm2, np.float64)
+    values, vectors, scale = _whitened_eigen(data_precision, tau2)
+    unit = _unit_symbol(area_mm2, correlation_mm, order)  # (bins, n)
     lam, weight = lattice_spectrum()
-    inverse_tau2 = 1.0 / np.asarray(tau2, np.float64)
-    l2 = float(correlation_mm) ** 2
-    out = np.zeros_like(C)
-    eye = np.eye(k)
-    for value, fraction in zip(lam, weight):
-        prior = (area * (1.0 + l2 * value / area) ** order)[:, None] * inverse_tau2[None, :]
-        # a map without a prior (tau2 inf) gets a vanishing ridge so the block stays invertible
-        out += fraction * np.linalg.inv(C + prior[:, :, None] * eye + 1e-30 * eye)
-    return out
+    # (C + u diag(1/tau2))^-1 = S V diag(1 / (values + u)) V^T S with S = diag(tau)
+    inverse_sum = np.einsum("j,jnk->nk", weight, 1.0 / (values[None] + unit[:, :, None]))
+    covariance = np.einsum("nik,nk,njk->nij", vectors, inverse_sum, vectors)
+    return covariance * scale[None, :, None] * scale[None, None, :]
+
+
+def _unit_symbol(area_mm2, correlation_mm, order):
+    """``u = area (1 + l^2 lambda / area)^order`` (bins, n) over the lattice spectrum's nodes."""
+    lam, _ = lattice_spectrum()
+    area = np.asarray(area_mm2, np.float64)[None, :]
+    return area * (1.0 + float(correlation_mm) ** 2 * lam[:, None] / area) ** order
+
+
+def _whitened_eigen(data_precision, tau2):
+    """Eigenvalues (n, k) and vectors (n, k, k) of ``S C S``, ``S = diag(sqrt(tau2))``, and ``S``'s diagonal.
+
+    With them ``(C + u diag(1 / tau2))^-1`` is ``S V diag(1 / (values + u)) V^T S``
+    for every ``u`` at the cost of one symmetric eigendecomposition per texel."""
+
+    tau2 = np.asarray(tau2, np.float64)
+    if not np.all(np.isfinite(tau2) & (tau2 > 0)):
+        raise ValueError("every map needs a finite prior spread (tau2 > 0)")
+    scale = np.sqrt(tau2)
+    C = np.asarray(data_precision, np.float64)
+    values, vectors = np.linalg.eigh(C * scale[None, :, None] * scale[None, None, :])
+    return np.maximum(values, 0.0), vectors, scale
 
 
 def expected_prior_energy(data_precision, area_mm2, tau2, correlation_mm, order=1):
@@ -236,20 +252,12 @@ def expected_prior_energy(data_precision, area_mm2, tau2, correlation_mm, order=
     ``tr(U Sigma)`` of the expectation-maximization update of ``tau^2``
     (:func:`updated_spread`)."""
 
-    C = np.asarray(data_precision, np.float64)
-    n, k, _ = C.shape
-    area = np.asarray(area_mm2, np.float64)
-    lam, weight = lattice_spectrum()
-    inverse_tau2 = 1.0 / np.asarray(tau2, np.float64)
-    l2 = float(correlation_mm) ** 2
-    out = np.zeros((n, k))
-    eye = np.eye(k)
-    for value, fraction in zip(lam, weight):
-        unit = area * (1.0 + l2 * value / area) ** order
-        prior = unit[:, None] * inverse_tau2[None, :]
-        inverse = np.linalg.inv(C + prior[:, :, None] * eye + 1e-30 * eye)
-        out += fraction * unit[:, None] * np.einsum("nii->ni", inverse)
-    return out
+    values, vectors, scale = _whitened_eigen(data_precision, tau2)
+    unit = _unit_symbol(area_mm2, correlation_mm, order)
+    _, weight = lattice_spectrum()
+    # u [S V diag(1 / (values + u)) V^T S]_mm = u tau2_m sum_k V_mk^2 / (values_k + u)
+    share = np.einsum("j,jn,jnk->nk", weight, unit, 1.0 / (values[None] + unit[:, :, None]))
+    return np.einsum("nmk,nk->nm", vectors ** 2, share) * scale[None, :] ** 2
 
 
 def updated_spread(deviation, unit, expected_energy, tau2, std):
@@ -346,3 +354,17 @@ class FourierPreconditioner:
         spectrum = np.einsum("uvij,uvj->uvi", self.inverse, spectrum)
         out = np.fft.irfft2(spectrum, s=self.shape, axes=(0, 1)).reshape(-1, k)
         return out[self.index]
+
+
+def known_mean_covariance(data_precision, area_mm2, tau2, mean_variance):
+    """Per-texel covariance ``(n, k, k)`` that face means estimated elsewhere add.
+
+    A mean known to variance ``v`` (k,) moves texel ``i`` by ``M_i = (C_i + D_i)^-1 D_i``
+    per unit (:func:`mean_mode_covariance`), so it adds ``M_i diag(v) M_i^T``."""
+
+    C = np.asarray(data_precision, np.float64)
+    k = C.shape[1]
+    D = np.asarray(area_mm2, np.float64)[:, None] / np.asarray(tau2, np.float64)[None, :]
+    Dm = D[:, :, None] * np.eye(k)
+    M = np.linalg.solve(C + Dm + 1e-30 * np.eye(k), Dm)
+    return np.einsum("nik,k,njk->nij", M, np.asarray(mean_variance, np.float64), M)

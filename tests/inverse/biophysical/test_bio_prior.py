@@ -156,3 +156,24 @@ def _block_diagonal(blocks):
     for i in range(n):
         out[i * k:(i + 1) * k, i * k:(i + 1) * k] = blocks[i]
     return out
+
+
+def test_expected_prior_energy_is_the_trace_of_the_em_update():
+    """Per texel ``[U Sigma]_ii`` of the dense posterior (interior texels) against the quadrature,
+    and the EM update keeps a spread the data cannot tell (C = 0) where it is."""
+    from polarbssrdf.inverse.biophysical.prior import expected_prior_energy, updated_spread
+
+    prior = grid_prior(2)
+    tau2 = prior.tau2(0.01)
+    U = prior.unit.toarray()
+    c = 1.0 / 0.02 ** 2
+    Sigma = np.linalg.inv(U / tau2 + c * np.eye(T * T))
+    yy, xx = np.divmod(np.arange(T * T), T)
+    inside = (np.abs(yy - T / 2) < T / 4) & (np.abs(xx - T / 2) < T / 4)
+    dense = np.mean(np.einsum("ij,ji->i", U, Sigma)[inside])
+    quadrature = expected_prior_energy(np.full((1, 1, 1), c), np.array([H * H]), [tau2], L, 2)[0, 0]
+    assert quadrature == pytest.approx(dense, rel=0.03)
+    # no data: the posterior is the prior, E[d^T U d] / n = tau2, the spread stays
+    energy = expected_prior_energy(np.zeros((T * T, 1, 1)), prior.area, [tau2], L, 2)[:, 0]
+    new_tau2, new_std = updated_spread(np.zeros(T * T), prior.unit, energy, tau2, 0.01)
+    assert new_std == pytest.approx(0.01, rel=0.02)
