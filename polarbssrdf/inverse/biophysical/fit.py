@@ -723,7 +723,7 @@ def _adam(loss_fn, prior, maps, held, config, movable):
     return out, first, last, []
 
 
-PRIOR_DOMINATED = 0.5
+PRIOR_DOMINATED = 0.4
 """A map whose posterior variance over one correlation area would stay above this fraction
 of its prior variance is held at its face mean (:func:`prior_dominated_maps`)."""
 
@@ -738,7 +738,8 @@ def prior_dominated_maps(loss_fn, maps, names, texels, spatial, config):
     times its prior ``s^2`` learns less from the data than from the prior, and
     fitting it per texel turns the albedo's structured errors into spurious
     patterns (``beta_m`` with six bands: 5x the constant map's error on the
-    demo). Such a map is held at its face mean, with the prior spread as its std."""
+    demo). Such a map is held at its face mean, with the prior spread as its std.
+    Returns those maps and, per chromophore, the fraction of its prior variance left."""
 
     C, _ = data_precision(loss_fn, maps, names, texels)
     typical = np.median(C, axis=0)
@@ -746,7 +747,8 @@ def prior_dominated_maps(loss_fn, maps, names, texels, spatial, config):
     spread = np.array([config.gain_std if n == GAIN else config.prior_std[n] for n in names])
     posterior = np.linalg.inv(pooled * typical + np.diag(1.0 / spread ** 2))
     ratio = np.diag(posterior) / spread ** 2
-    return [n for n, r in zip(names, ratio) if n != GAIN and r > PRIOR_DOMINATED]
+    remaining = {n: float(r) for n, r in zip(names, ratio) if n != GAIN}
+    return [n for n, r in remaining.items() if r > PRIOR_DOMINATED], remaining
 
 
 def _start_means(maps, good):
@@ -847,9 +849,9 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
                        if n in names}
     movable = surface.ravel()  # the flat maps' unknowns, in the spatial prior's order
     held_std = dict(held_std or {})
-    dominated = []
+    dominated, remaining = [], {}
     if spatial is not None and config.hold_uninformed:
-        dominated = prior_dominated_maps(loss_fn, maps, names, good.ravel(), spatial, config)
+        dominated, remaining = prior_dominated_maps(loss_fn, maps, names, good.ravel(), spatial, config)
         starts = _start_means(maps, good)
         for name in dominated:
             mean, mean_std = block_means.get(name, (starts[name], 0.0))
@@ -928,6 +930,7 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
              for k, n in enumerate(names) if prior.free[k] or n in block_means}
     noise = {"relative_sigma": {b.name: float(s) for b, s in zip(bands, loss_fn.sigma)},
              "held_at_face_mean": dominated,
+             "prior_variance_left": remaining,
              "common_relative_sigma": loss_fn.common,
              "model": config.noise, "face_means": means,
              "spread": {n: float(v) for n, v in zip(names, prior.std)}}
