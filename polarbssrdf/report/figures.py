@@ -217,7 +217,7 @@ def changes_over_frames_png(name, recovered, truth, mask, unit="1") -> bytes:
             axes.set_xticks([])
             axes.set_yticks([])
     bar = figure.colorbar(image, ax=panels, fraction=0.03, pad=0.02)
-    bar.set_label(f"{name}(frame) - {name}(frame {first}) [{unit_label(unit)}]", fontsize=8)
+    bar.set_label(f"{name} minus frame {first} [{unit_label(unit)}]", fontsize=8)
     return _png(figure)
 
 
