@@ -160,12 +160,14 @@ def closing_line(outdir, frame, holdout, texture, capture) -> str:
     whether ``evaluate`` can score the maps: its truth must have the fitted ``frame`` and the
     run's ``texture`` size. Otherwise the line says why not and offers what does apply: the
     held-out re-renders (``evaluate`` without truth) when the run held cameras out, and the
-    report.
+    report. ``capture`` None (it could not be read again): the report only.
     """
     frame_option = f" --frame {frame}" if frame else ""
     evaluate = f"'polarbssrdf evaluate {outdir}{frame_option}'"
     report = f"'polarbssrdf report {outdir}'"
     where = f"  result.json, metrics.json and previews in {outdir}; "
+    if capture is None:
+        return where + f"see them with {report}"
     truth = capture.truth
     truth_frames = {int(r.frame) for r in truth.maps} if truth is not None else set()
     if truth is not None and int(truth.texture_size) == int(texture) and frame in truth_frames:
@@ -196,9 +198,14 @@ def run_reconstruct(args) -> int:
                          workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                          overwrite=args.overwrite, progress=not args.quiet,
                          variant=args.variant)
+    # only the fitted frame's files are checked: a later frame's missing image fails that
+    # frame alone (reported below), not this line
+    try:
+        capture = load_capture(result.capture, check_images=False, frames=[result.frame])
+    except (OSError, ValueError):  # e.g. a stage that reads no image, and one is gone since
+        capture = None
     print(result.summary(closing_line(result.path, result.frame, result.holdout,
-                                      result.texture, load_capture(result.capture,
-                                                                   check_images=False))))
+                                      result.texture, capture)))
     if result.failed:
         for frame, reason in sorted(result.failed.items()):
             print(f"polarbssrdf reconstruct: frame {frame} failed: {reason}", file=sys.stderr)

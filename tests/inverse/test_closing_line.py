@@ -39,3 +39,8 @@ def test_truth_of_another_size_or_without_the_frame_is_named():
     assert "score it" not in line and "64 x 64" in line and "--texture 64" in line
     line = closing_line("out", 5, ["cam01"], 32, _capture(32, frames=(0,)))
     assert "no frame 5" in line and "evaluate out --frame 5' re-renders" in line
+
+
+def test_an_unreadable_capture_leaves_the_report():
+    line = closing_line("out", 0, ["cam03"], 32, None)
+    assert line.endswith("see them with 'polarbssrdf report out'") and "evaluate" not in line
