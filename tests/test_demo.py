@@ -7,6 +7,7 @@ session; the tests read its directory and never modify it.
 from __future__ import annotations
 
 import base64
+import dataclasses
 import io
 import json
 import math
@@ -58,6 +59,7 @@ def test_report_exists_and_every_image_decodes(demo_dir):
     # 'polarbssrdf report' wrote it from the demo directory, reusing metrics.json's
     # evaluation: the held-out re-render figures are in the table
     assert "Held-out views, re-rendered" in page
+    assert "cam02 was held out of the fit" in page  # marked among the input views
 
 
 def _finite_numbers(value, where="metrics"):
@@ -135,11 +137,36 @@ def test_report_without_truth_shows_maps_losses_and_residuals(demo_dir, tmp_path
     select_variant("llvm_ad_mono_polarized")
     path = write_report(demo_dir / "result", tmp_path / "report.html", capture=capture)
     page = path.read_text()
-    assert "without ground truth" in page
+    assert "without ground truth (the capture has no ground truth)" in page
     assert "Metrics" not in page and ": truth" not in page
+    assert "relative to the truth" not in page  # issue 21, item 16
     for heading in ("Static maps", "Re-rendered view", "Loss curves", "Biophysical maps"):
         assert heading in page, heading
     assert len(_images(page)) >= 15
+    # the held-out camera is marked among the input views (item 14)
+    assert "cam02 was held out of the fit" in page
+
+    # in a real browser: every image decodes, and the maps sit side by side (item 17): one
+    # panel per row made the page about 370 px tall per image at this width, now under 280
+    shown, broken = _images_broken(path)
+    assert shown == len(_images(page)) and broken == 0
+    assert _page_height(path) < 280 * shown
+
+
+def test_report_with_truth_at_another_texture_size_says_why_it_has_no_truth(demo_dir,
+                                                                             tmp_path):
+    """It was labelled "without ground truth" with no reason (issue 21, item 16)."""
+    from polarbssrdf.report.page import load_report_data
+    from polarbssrdf.io import load_capture
+
+    capture = load_capture(demo_dir / "capture", check_images=False)
+    capture.truth = dataclasses.replace(capture.truth, texture_size=2 * TINY["texture"])
+    said = []
+    data = load_report_data(demo_dir / "result", capture, progress=said.append)
+    assert not data.truth and data.evaluation is None
+    size = 2 * TINY["texture"]
+    assert f"the capture's truth is {size} x {size} texels" in data.no_truth_reason
+    assert any(data.no_truth_reason in line for line in said)
 
 
 # --------------------------------------------------------------------------- the browser
@@ -150,6 +177,16 @@ def _chromium(*arguments, timeout=120):
     return subprocess.run([executable, "--headless", "--no-sandbox", "--disable-gpu",
                            "--hide-scrollbars", *arguments], capture_output=True, text=True,
                           timeout=timeout)
+
+
+def _page_height(page_path):
+    """The page's height in CSS pixels in a 1200 px wide window (the report's script records
+    it)."""
+    dom = _chromium("--window-size=1200,3000", "--dump-dom",
+                    page_path.resolve().as_uri()).stdout
+    height = re.search(r'<body[^>]*data-height="(\d+)"', dom)
+    assert height, "the report's script did not record the page height"
+    return int(height.group(1))
 
 
 def _images_broken(page_path):

@@ -91,13 +91,15 @@ class Reconstruction(ResultDirectory):
         self.holdout, self.seconds = list(holdout), seconds
         self.stage_lines, self.failed = list(stage_lines), dict(failed)
 
-    def summary(self) -> str:
-        """The lines ``reconstruct`` prints when it finishes."""
+    def summary(self, closing=None) -> str:
+        """The lines ``reconstruct`` prints when it finishes; ``closing`` replaces the last one
+        (``polarbssrdf.inverse.commands.closing_line``: the next command that applies)."""
         held = f"; held out {', '.join(self.holdout)}" if self.holdout else ""
         lines = [f"polarbssrdf reconstruct: {self.capture} -> {self.path} ({self.texture} x "
                  f"{self.texture} texels, frame {self.frame}{held}) in {self.seconds:.1f} s"]
         lines += self.stage_lines
-        lines.append(f"  result.json, metrics.json and previews in {self.path}; score it with "
+        lines.append(closing if closing is not None else
+                     f"  result.json, metrics.json and previews in {self.path}; score it with "
                      f"'polarbssrdf evaluate {self.path}'")
         return "\n".join(lines)
 

@@ -17,10 +17,17 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_rgb
 from matplotlib.figure import Figure
 
+from polarbssrdf.report.calibration import COVERAGE_K, expected_coverage
+
 DPI = 100
 MAP_PANEL_INCHES = 2.7
 BACKGROUND = "#e8e8e8"
 """Colour of texels that are not on the mesh (or were not scored)."""
+UNITLESS = "unitless"
+"""Colour bar label of dimensionless maps (a bare "1" reads as a stray digit)."""
+RADIANCE_UNIT = r"radiance [W sr$^{-1}$ mm$^{-2}$]"
+"""Colour bar label of captured and re-rendered images: radiance in the capture's units
+(intensity W/sr over mm^2, ``polarbssrdf.io.manifest.CAPTURE_UNITS``)."""
 
 
 def _figure(width, height):
@@ -52,6 +59,12 @@ def _robust_range(*arrays, percentile=1.0):
     return float(low), float(high)
 
 
+def unit_label(unit) -> str:
+    """Colour bar label of a map in ``unit``: dimensionless units ("1", "") read "unitless"."""
+    text = "" if unit is None else str(unit).strip()
+    return UNITLESS if text in ("", "1") else text
+
+
 def _map_axes(axes, values, title, vmin, vmax, cmap, unit, figure):
 
     colormap = matplotlib.colormaps[cmap].with_extremes(bad=BACKGROUND)
@@ -60,12 +73,14 @@ def _map_axes(axes, values, title, vmin, vmax, cmap, unit, figure):
     axes.set_xticks([])
     axes.set_yticks([])
     bar = figure.colorbar(image, ax=axes, fraction=0.046, pad=0.03)
-    bar.set_label(unit, fontsize=8)
+    bar.set_label(unit_label(unit), fontsize=8)
     bar.ax.tick_params(labelsize=7)
 
 
-def map_comparison_png(name, recovered, truth, mask, unit="1", relative=False) -> bytes:
-    """One map: recovered | truth (one colour scale) | error, with colour bars and units.
+def map_comparison_png(name, recovered, truth, mask, unit="1", relative=False,
+                       std=None) -> bytes:
+    """One map: recovered | truth (one colour scale) | error [| posterior std], with colour
+    bars and units.
 
     Parameters
     ----------
@@ -73,38 +88,51 @@ def map_comparison_png(name, recovered, truth, mask, unit="1", relative=False) -
         Channel name (the title).
     recovered, truth : (T, T) arrays
         The result's map and the ground truth; ``truth`` may be None (a real
-        capture): then only the recovered map is drawn.
+        capture): then no truth and no error panel are drawn.
     mask : (T, T) bool
         Texels shown (and scored): on the mesh, confident, finite truth.
     unit : str
-        Unit of the map, on its colour bar.
+        Unit of the map, on its colour bar ("1": "unitless").
     relative : bool
         Draw the error as ``(recovered - truth) / truth`` in percent (albedos)
         rather than as a difference in ``unit``.
+    std : (T, T) array, optional
+        The map's posterior standard deviation (same unit), drawn last on its
+        own scale from 0.
     """
     estimate = _masked(recovered, mask)
+    columns = (1 if truth is None else 3) + (std is not None)
+    figure = _figure(MAP_PANEL_INCHES * (1.15 if columns == 1 else 1.1 * columns),
+                     MAP_PANEL_INCHES)
+    panels = list(np.atleast_1d(figure.subplots(1, columns)))
     if truth is None:
-        figure = _figure(MAP_PANEL_INCHES * 1.15, MAP_PANEL_INCHES)
         low, high = _robust_range(estimate)
-        _map_axes(figure.add_subplot(1, 1, 1), estimate, f"{name} (recovered)", low, high,
-                  "viridis", unit, figure)
-        return _png(figure)
-    reference = _masked(truth, mask)
-    low, high = _robust_range(estimate, reference)
-    if relative:
-        error = 100.0 * (estimate - reference) / np.ma.masked_less_equal(reference, 0.0)
-        error_unit = "% of truth"
+        _map_axes(panels.pop(0), estimate, f"{name} (recovered)", low, high, "viridis", unit,
+                  figure)
     else:
-        error = estimate - reference
-        error_unit = unit
-    limit = float(np.percentile(np.abs(np.ma.compressed(error)), 99)) if np.ma.count(error) else 1
-    limit = limit if limit > 0 else 1e-6
-    figure = _figure(MAP_PANEL_INCHES * 3.3, MAP_PANEL_INCHES)
-    panels = figure.subplots(1, 3)
-    _map_axes(panels[0], estimate, f"{name}: recovered", low, high, "viridis", unit, figure)
-    _map_axes(panels[1], reference, f"{name}: truth", low, high, "viridis", unit, figure)
-    _map_axes(panels[2], error, "error (recovered - truth)", -limit, limit, "RdBu_r",
-              error_unit, figure)
+        reference = _masked(truth, mask)
+        low, high = _robust_range(estimate, reference)
+        if relative:
+            error = 100.0 * (estimate - reference) / np.ma.masked_less_equal(reference, 0.0)
+            error_unit = "% of truth"
+        else:
+            error = estimate - reference
+            error_unit = unit
+        limit = (float(np.percentile(np.abs(np.ma.compressed(error)), 99))
+                 if np.ma.count(error) else 1)
+        limit = limit if limit > 0 else 1e-6
+        _map_axes(panels.pop(0), estimate, f"{name}: recovered", low, high, "viridis", unit,
+                  figure)
+        _map_axes(panels.pop(0), reference, f"{name}: truth", low, high, "viridis", unit,
+                  figure)
+        _map_axes(panels.pop(0), error, "error (recovered - truth)", -limit, limit, "RdBu_r",
+                  error_unit, figure)
+    if std is not None:
+        spread = _masked(std, mask)
+        high = (float(np.percentile(np.ma.compressed(spread), 99)) if np.ma.count(spread)
+                else 0.0)
+        _map_axes(panels.pop(0), spread, f"{name}: posterior std", 0.0,
+                  high if high > 0 else 1e-6, "magma", unit, figure)
     return _png(figure)
 
 
@@ -141,21 +169,23 @@ def normals_png(recovered, truth, mask) -> bytes:
     return _png(figure)
 
 
-def input_views_png(views, unit) -> bytes:
-    """The capture's I0 and I90 images: one row per view.
+def input_views_png(views, unit=RADIANCE_UNIT) -> bytes:
+    """The capture's I0 and I90 images: one column per view, I0 above I90.
 
-    ``views``: list of ``(title, I0, I90)`` with 2-D arrays of one band. Both
-    images of a view share one linear scale (0 to the 99.5th percentile of
-    I0), so the specular light that I90 blocks shows as the difference.
+    ``views``: list of ``(title, I0, I90)`` with 2-D arrays of one band (the
+    title says whether the view was held out of the fit). Both images of a
+    view share one linear scale (0 to the 99.5th percentile of I0), so the
+    specular light that I90 blocks shows as the difference.
     """
-    rows = len(views)
-    figure = _figure(6.4, 2.9 * rows)
-    panels = np.atleast_2d(figure.subplots(rows, 2, squeeze=False))
-    for row, (title, i0, i90) in enumerate(views):
-        high = float(np.percentile(i0[np.isfinite(i0)], 99.5)) or 1.0
-        for column, (label, image) in enumerate((("I0", i0), ("I90", i90))):
-            _map_axes(panels[row, column], np.ma.masked_invalid(image), f"{title}: {label}", 0.0,
-                      high, "gray", unit, figure)
+    columns = len(views)
+    figure = _figure(3.1 * columns, 5.6)
+    panels = figure.subplots(2, columns, squeeze=False)
+    for column, (title, i0, i90) in enumerate(views):
+        finite = i0[np.isfinite(i0)]
+        high = (float(np.percentile(finite, 99.5)) if finite.size else 0.0) or 1.0
+        for row, (label, image) in enumerate((("I0", i0), ("I90", i90))):
+            _map_axes(panels[row, column], np.ma.masked_invalid(image), f"{title}: {label}",
+                      0.0, high, "gray", unit, figure)
     return _png(figure)
 
 
@@ -187,7 +217,7 @@ def changes_over_frames_png(name, recovered, truth, mask, unit="1") -> bytes:
             axes.set_xticks([])
             axes.set_yticks([])
     bar = figure.colorbar(image, ax=panels, fraction=0.03, pad=0.02)
-    bar.set_label(f"{name}(frame) - {name}(frame {first}) [{unit}]", fontsize=8)
+    bar.set_label(f"{name} minus frame {first} [{unit_label(unit)}]", fontsize=8)
     return _png(figure)
 
 
@@ -218,7 +248,7 @@ def region_series_png(parameters, recovered, truth, units) -> bytes:
                 axes.plot(known, [reference[str(f)][parameter]["mean"] for f in known], "--",
                           color=colour, lw=1.2)
         axes.set_xlabel("frame")
-        axes.set_ylabel(f"{parameter} [{units.get(parameter, '1')}]")
+        axes.set_ylabel(f"{parameter} [{unit_label(units.get(parameter))}]")
         axes.set_title(f"{parameter}, region mean" + (" (solid: recovered, dashed: truth)"
                                                       if truth is not None else ""),
                        fontsize=9)
@@ -230,24 +260,32 @@ def region_series_png(parameters, recovered, truth, units) -> bytes:
 
 
 def _loss_axes(axes, xlabel, ylabel, title, legend=None):
+    """Log-scale loss axes whose legend sits below the plot, never over the curves."""
     axes.set_yscale("log")
     axes.set_xlabel(xlabel)
     axes.set_ylabel(ylabel)
     axes.set_title(title, fontsize=10)
-    axes.legend(**(legend or {"fontsize": 7}))
+    options = {"fontsize": 7, "ncol": 2, **(legend or {})}
+    axes.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), frameon=False, **options)
     axes.grid(alpha=0.3)
 
 
 def loss_curves_png(static_history, dynamic_histories, bio_histories) -> bytes:
     """Loss per epoch (static: every term; dynamic: total per frame) and per
-    Gauss-Newton iteration (biophysical: per frame); log scale."""
+    Gauss-Newton iteration (biophysical: per frame); log scale (:func:`loss_curves_figure`)."""
+    return _png(loss_curves_figure(static_history, dynamic_histories, bio_histories))
+
+
+def loss_curves_figure(static_history, dynamic_histories, bio_histories):
+    """The :class:`~matplotlib.figure.Figure` of :func:`loss_curves_png` (legends below the
+    axes)."""
 
     panels_wanted = [p for p, present in (("static", static_history),
                                           ("dynamic", dynamic_histories),
                                           ("bio", bio_histories)) if present]
     if not panels_wanted:
         raise ValueError("no loss history to plot")
-    figure = _figure(4.3 * len(panels_wanted), 3.3)
+    figure = _figure(4.3 * len(panels_wanted), 4.6)
     panels = dict(zip(panels_wanted, np.atleast_1d(figure.subplots(1, len(panels_wanted)))))
     colours = matplotlib.colormaps["viridis"]
     if static_history:
@@ -262,7 +300,7 @@ def loss_curves_png(static_history, dynamic_histories, bio_histories) -> bytes:
             style = dict(lw=2.2, color="black") if term == "total" else dict(lw=1.1)
             axes.plot(epochs, values, label=term, **style)
         _loss_axes(axes, "epoch", "loss (chi-square per texel-view; weighted)", "static stage",
-                   legend=dict(fontsize=6, ncol=2))
+                   legend=dict(fontsize=6, ncol=3))
     if dynamic_histories:
         axes = panels["dynamic"]
         frames = sorted(dynamic_histories, key=int)
@@ -280,10 +318,10 @@ def loss_curves_png(static_history, dynamic_histories, bio_histories) -> bytes:
             axes.plot(np.arange(len(losses)), losses, "o-", ms=2.5,
                       color=colours(index / max(len(frames) - 1, 1)), label=f"frame {frame}")
         _loss_axes(axes, "Gauss-Newton iteration", "loss (data + prior)", "biophysical stage")
-    return _png(figure)
+    return figure
 
 
-def rerender_png(camera, band, observed, rendered, mask, unit) -> bytes:
+def rerender_png(camera, band, observed, rendered, mask, unit=RADIANCE_UNIT) -> bytes:
     """A view of the capture beside its re-render with the recovered maps:
     I_sss = 2 I90 and I_s = I0 - I90 observed | re-rendered | residual."""
     figure = _figure(9.6, 5.2)
@@ -301,4 +339,30 @@ def rerender_png(camera, band, observed, rendered, mask, unit) -> bytes:
         _map_axes(panels[row, 1], model, f"{label} re-rendered", low, high, "gray", unit, figure)
         _map_axes(panels[row, 2], residual, "re-rendered - captured", -limit or -1e-6,
                   limit or 1e-6, "RdBu_r", unit, figure)
+    return _png(figure)
+
+
+def calibration_png(curves, ks=COVERAGE_K) -> bytes:
+    """Observed against expected coverage of the posterior std, one line per chromophore.
+
+    ``curves``: ``{name: (fractions, texels)}`` of :func:`coverage_fractions`.
+    Points above the diagonal: the std is too large (errors smaller than
+    claimed); below: too small (overconfident).
+    """
+    expected = expected_coverage(ks)
+    figure = _figure(5.2, 4.4)
+    axes = figure.add_subplot(1, 1, 1)
+    axes.plot([0, 1], [0, 1], color="0.5", lw=1, ls="--", label="calibrated")
+    colours = matplotlib.colormaps["tab10"]
+    for index, (name, (fractions, texels)) in enumerate(curves.items()):
+        axes.plot(expected, fractions, "o-", ms=3.5, lw=1.4, color=colours(index % 10),
+                  label=f"{name} ({texels:,} texels)")
+    axes.set_xlim(0, 1)
+    axes.set_ylim(0, 1)
+    axes.set_aspect("equal")
+    axes.set_xlabel(f"expected coverage erf(k / sqrt 2), k = {ks[0]:g} .. {ks[-1]:g}")
+    axes.set_ylabel("observed fraction with |recovered - truth| < k std")
+    axes.set_title("posterior calibration", fontsize=10)
+    axes.grid(alpha=0.3)
+    axes.legend(fontsize=7, loc="lower right")
     return _png(figure)

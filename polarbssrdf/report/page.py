@@ -21,7 +21,8 @@ Without ground truth (a real capture) the report shows the recovered maps,
 the loss curves and the re-rendering residuals only.
 
 A small script at the end of the page marks images that failed to decode
-(``<body data-images-broken>``), which the browser test reads.
+(``<body data-images-broken>``) and records the page's height in CSS pixels
+(``data-height``), which the browser tests read.
 """
 
 from __future__ import annotations
@@ -45,10 +46,14 @@ from polarbssrdf.inverse.biophysical.model import PARAMETERS as BIO_PARAMETERS
 from polarbssrdf.inverse.biophysical.stage import UNITS, region_masks, region_summary
 from polarbssrdf.inverse.evaluation.rerender import captured_view, render_view, separation_errors
 from polarbssrdf.inverse.evaluation.scores import evaluate_stages, truth_capture
+from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
 from polarbssrdf.inverse.results.directory import REPORT_FILE, RESULT_FILE, read_result
 from polarbssrdf.io.atomic import atomic_write_text
 from polarbssrdf.io.exr import read_exr
+from polarbssrdf.report.calibration import COVERAGE_K, coverage_fractions
 from polarbssrdf.report.figures import (
+    RADIANCE_UNIT,
+    calibration_png,
     changes_over_frames_png,
     input_views_png,
     loss_curves_png,
@@ -56,6 +61,7 @@ from polarbssrdf.report.figures import (
     normals_png,
     region_series_png,
     rerender_png,
+    unit_label,
 )
 from polarbssrdf.variants import DEFAULT_VARIANT
 
@@ -67,6 +73,12 @@ fit, not by 4 spp of a direct-light render)."""
 
 STATIC_MAPS = ("eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement")
 RELATIVE_ERROR_MAPS = ("rho_s", "rho_ss")
+STD_SUFFIX = "_std"
+"""A biophysical map's posterior standard deviation is the channel ``<name>_std`` (same unit);
+``C_m_std`` etc. are optional: panels and the calibration plot are left out without them."""
+ALBEDO_GAIN = "albedo_gain"
+"""Optional biophysical channel: the per-texel gain on the input albedo (unitless)."""
+RADIANCE_HTML = "W sr<sup>-1</sup> mm<sup>-2</sup>"
 
 
 class LazyFrames(Mapping):
@@ -132,6 +144,8 @@ class ReportData:
     timings: dict = field(default_factory=dict)
     evaluation: dict | None = None
     """:func:`polarbssrdf.inverse.evaluation.scores.evaluate_stages` (None without truth)."""
+    no_truth_reason: str | None = None
+    """Why the report is without ground truth (None when it has truth)."""
 
     @property
     def bands(self):
@@ -182,12 +196,11 @@ def load_report_data(result_dir, capture=None, evaluation=None, progress=None) -
         paths.setdefault(record["stage"], {})[int(record["frame"])] = result_dir / record["path"]
     for stage, files in paths.items():
         data.maps[stage] = LazyFrames(files, lambda frame, files=files: read_exr(files[frame])[0])
-    if capture.truth is not None:
-        if int(capture.truth.texture_size) == int(manifest.texture_size):
-            data.truth = LazyFrames([r.frame for r in capture.truth.maps], capture.truth_maps)
-        elif progress:
-            progress(f"the truth is {capture.truth.texture_size}^2 texels, the result "
-                     f"{manifest.texture_size}^2: shown without truth")
+    data.no_truth_reason = no_truth_reason(capture, manifest.texture_size)
+    if data.no_truth_reason is None:
+        data.truth = LazyFrames([r.frame for r in capture.truth.maps], capture.truth_maps)
+    elif capture.truth is not None and progress:
+        progress(f"report: {data.no_truth_reason}: shown without truth")
     data.losses = read_json_or_default(result_dir / "metrics.json", {}) or {}
     data.bio_summary = read_json_or_default(result_dir / "bio" / "summary.json")
     data.timings = read_json_or_default(result_dir / "timings.json", {}) or {}
@@ -195,6 +208,19 @@ def load_report_data(result_dir, capture=None, evaluation=None, progress=None) -
         data.evaluation = evaluation if evaluation is not None else evaluate_stages(
             result_dir, capture, holdout=False)
     return data
+
+
+def no_truth_reason(capture, texture_size) -> str | None:
+    """Why a result of ``texture_size`` texels cannot be shown against ``capture``'s truth
+    (None when it can)."""
+    if capture.truth is None:
+        return "the capture has no ground truth"
+    if int(capture.truth.texture_size) != int(texture_size):
+        size = int(capture.truth.texture_size)
+        return (f"the capture's truth is {size} x {size} texels and the result "
+                f"{int(texture_size)} x {int(texture_size)} (scores need one size; "
+                f"reconstruct with --texture {size})")
+    return None
 
 
 # --------------------------------------------------------------------------- figures
@@ -215,6 +241,16 @@ def _static_frame(data):
     return int(data.manifest.settings.get("frame", 0))
 
 
+def _holdout(data) -> list:
+    """Cameras the run held out of the fit (``result.json``'s settings)."""
+    return list(data.manifest.settings.get("holdout") or [])
+
+
+def _grid(parts) -> str:
+    """Figures side by side, as many per row as the page is wide."""
+    return '<div class="grid">' + "\n".join(parts) + "</div>"
+
+
 def input_views_section(data) -> str:
 
     frame = _static_frame(data)
@@ -228,17 +264,29 @@ def input_views_section(data) -> str:
     step = max(len(chosen) // INPUT_VIEWS, 1)
     chosen = chosen[::step][:INPUT_VIEWS]
     band = _display_band(data.bands)
+    holdout = _holdout(data)
     views = []
     for record in chosen:
         images = captured_view(data.capture, record)[band]
-        views.append((f"{record.camera} ({band})", images["I0"], images["I90"]))
+        held = ", held out" if record.camera in holdout else ""
+        views.append((f"{record.camera} ({band}{held})", images["I0"], images["I90"]))
     kind = "raw sensor mosaics, demosaicked" if chosen and chosen[0].kind == "raw" else \
         "analyser images"
-    return (f"<p>Frame {frame}, {len(seen)} cameras ({kind}); {len(chosen)} shown. I90 blocks "
-            "most "
+    shown_held = [r.camera for r in chosen if r.camera in holdout]
+    if shown_held:
+        held_text = (f" Camera {', '.join(shown_held)} was held out of the fit (marked "
+                     "\"held out\"): it is shown as captured, and re-rendered below for "
+                     "validation.")
+    elif holdout:
+        held_text = f" Held out of the fit (not shown): {', '.join(holdout)}."
+    else:
+        held_text = ""
+    return (f"<p>Frame {frame}, {len(seen)} cameras ({kind}); {len(chosen)} shown, radiance "
+            f"in {RADIANCE_HTML}. I90 blocks most "
             "of the specular reflection (the light is polarized at 0 degrees), so "
-            "I0 - I90 is the specular part and 2 I90 the subsurface part (eq. 22-24).</p>"
-            + _image(input_views_png(views, "linear radiance"), "input views"))
+            "I0 - I90 is the specular part and 2 I90 the subsurface part (eq. 22-24)."
+            f"{held_text}</p>"
+            + _image(input_views_png(views, RADIANCE_UNIT), "input views"))
 
 
 def _display_band(bands):
@@ -254,7 +302,8 @@ def static_maps_section(data) -> str:
     maps = data.maps["static"][frame]
     truth = data.truth.get(frame)
     mask = _static_mask(data, maps)
-    parts = []
+    losers = losing_maps(data.evaluation)
+    parts, singles = [], []
     names = list(STATIC_MAPS) + [f"rho_sss.{band}" for band in data.bands]
     for name in names:
         if name not in maps:
@@ -262,21 +311,31 @@ def static_maps_section(data) -> str:
         reference = truth.get(name) if truth is not None else None
         relative = name in RELATIVE_ERROR_MAPS or name.startswith("rho_sss")
         unit = data.units.get(name.split(".")[0], "1")
-        parts.append(_image(map_comparison_png(name, maps[name], reference, mask, unit,
-                                               relative), f"{name} map"))
-    parts.append(_image(map_comparison_png("confidence", maps["confidence"], None,
-                                           np.asarray(data.atlas.valid, bool)),
-                        "confidence map"))
+        image = _image(map_comparison_png(name, maps[name], reference, mask, unit, relative),
+                       f"{name} map")
+        if name in losers.get("static", {}):
+            image = (f'<p class="loses">{html.escape(name)}: {losers["static"][name]}</p>'
+                     + image)
+        (parts if reference is not None else singles).append(image)
+    singles.append(_image(map_comparison_png("confidence", maps["confidence"], None,
+                                             np.asarray(data.atlas.valid, bool)),
+                          "confidence map"))
     note = ""
     if "specular_peak_angle" in maps:
-        parts.append(_image(map_comparison_png("specular_peak_angle", maps["specular_peak_angle"],
-                                               None, mask, "deg"), "specular peak angle map"))
+        singles.append(_image(map_comparison_png("specular_peak_angle",
+                                                 maps["specular_peak_angle"], None, mask,
+                                                 "deg"), "specular peak angle map"))
         note = (" The specular peak angle is the angle between the normal and the closest half "
                 "vector of the texel's views: where it is large the glossy lobes were seen on "
                 "their tails only, and alpha_s and rho_s rest on the smoothness prior.")
+    if truth is not None:
+        intro = ("Each map: recovered, truth (one colour scale) and the error; albedo errors "
+                 "are relative to the truth, in percent.")
+    else:
+        intro = f"Recovered maps only ({html.escape(data.no_truth_reason or 'no truth')})."
     return ("<p>Texels with confidence 0 (too few views, or a fit far worse than the median) "
-            "and texels off the mesh are grey. Albedo errors are relative to the truth."
-            + note + "</p>" + "\n".join(parts))
+            f"and texels off the mesh are grey. {intro}" + note + "</p>"
+            + "\n".join(parts) + _grid(singles))
 
 
 def normals_section(data) -> str:
@@ -319,26 +378,82 @@ def dynamic_section(data) -> str:
             + _image(changes_over_frames_png(name, recovered, truth, mask), "albedo changes"))
 
 
+def _bio_panels(data, frame, maps, truth):
+    """``(name, recovered, truth or None, mask, unit, std or None)`` of one frame's biophysical
+    figures: the four chromophores (with their posterior std when the file has it), the
+    albedo gain if present, the residual. Every panel has the same mask (on the mesh, not
+    flagged), so texels without input are grey in all of them."""
+    mask = _bio_mask(data, maps)
+    panels = []
+    for name in BIO_PARAMETERS:
+        reference = truth.get(name) if truth is not None else None
+        panels.append((name, maps[name], reference, mask, UNITS[name],
+                       maps.get(name + STD_SUFFIX)))
+    if ALBEDO_GAIN in maps:
+        panels.append((ALBEDO_GAIN, maps[ALBEDO_GAIN], None, mask, "1", None))
+    panels.append(("residual", maps["residual"], None, mask,
+                   f"{UNITS['residual']} (RMS over bands)", None))
+    return panels
+
+
+def calibration_curves(data, frames):
+    """``{chromophore: (fractions, texels)}`` of :func:`coverage_fractions` over ``frames``
+    pooled: only chromophores whose maps carry ``<name>_std`` and frames with truth."""
+    pooled = {}
+    for frame in frames:
+        if frame not in data.truth:
+            continue
+        maps, truth = data.maps["bio"][frame], data.truth[frame]
+        mask = _bio_mask(data, maps)
+        for name in BIO_PARAMETERS:
+            std = maps.get(name + STD_SUFFIX)
+            if std is None or name not in truth:
+                continue
+            fractions, texels = coverage_fractions(maps[name], truth[name], std, mask)
+            if texels:
+                total, count = pooled.get(name, (np.zeros(len(COVERAGE_K)), 0))
+                pooled[name] = (total + fractions * texels, count + texels)
+    return {name: (total / count, count) for name, (total, count) in pooled.items()}
+
+
+def calibration_html(data, frames) -> str:
+    """The calibration plot of the posterior std (with truth and ``*_std`` channels), or ""."""
+    curves = calibration_curves(data, frames)
+    if not curves:
+        return ""
+    return ("<h3>Posterior calibration</h3><p>For each chromophore, the fraction of surface "
+            "texels (on the mesh, not flagged; all frames with truth) whose error "
+            "|recovered - truth| is below k times the posterior standard deviation, against "
+            "the fraction erf(k / sqrt 2) a Gaussian posterior of that width would give, "
+            f"k = {COVERAGE_K[0]:g} to {COVERAGE_K[-1]:g}. Above the diagonal the std is too "
+            "large, below it too small (overconfident).</p>"
+            + _image(calibration_png(curves), "posterior calibration"))
+
+
 def biophysical_section(data) -> str:
 
     bio = data.maps.get("bio", {})
     if not bio:
         return ""
     frames = sorted(bio)
+    losers = losing_maps(data.evaluation).get("bio", {})
     parts = []
+    has_std = False
     for frame in sorted({frames[0], frames[-1]}):
         maps = bio[frame]
         truth = data.truth.get(frame)
-        mask = _bio_mask(data, maps)
         parts.append(f"<h3>Frame {frame}</h3>")
-        for name in BIO_PARAMETERS:
-            reference = truth.get(name) if truth is not None else None
-            parts.append(_image(map_comparison_png(name, maps[name], reference, mask,
-                                                   UNITS[name]), f"{name} frame {frame}"))
-        parts.append(_image(map_comparison_png("residual", maps["residual"], None,
-                                               np.asarray(data.atlas.valid, bool),
-                                               f"{UNITS['residual']} (RMS over bands)"),
-                            f"residual frame {frame}"))
+        figures, singles = [], []
+        for name, values, reference, mask, unit, std in _bio_panels(data, frame, maps, truth):
+            has_std |= std is not None
+            image = _image(map_comparison_png(name, values, reference, mask, unit, std=std),
+                           f"{name} frame {frame}")
+            why = losers.get(str(frame), {}).get(name)
+            if why:
+                image = f'<p class="loses">{html.escape(name)}: {why}</p>' + image
+            (figures if reference is not None or std is not None else singles).append(image)
+        parts.append("\n".join(figures) + _grid(singles))
+    parts.append(calibration_html(data, frames))
     summary = data.bio_summary
     truth_summary = None
     if summary is not None:
@@ -346,14 +461,22 @@ def biophysical_section(data) -> str:
             masks = region_masks(data.capture, data.capture.load_mesh(), data.atlas)
             truth_summary = merged_region_summary(data.truth, frames, masks)
         units = summary.get("units", {})
-        parts.append("<h3>Hemoglobin over time</h3>")
-        parts.append(_image(region_series_png(["C_h_out", "C_h_in"], summary, truth_summary,
-                                              units), "hemoglobin over time"))
+        if len(frames) > 1:
+            parts.append("<h3>Hemoglobin over time</h3>")
+            parts.append(_image(region_series_png(["C_h_out", "C_h_in"], summary,
+                                                  truth_summary, units),
+                                "hemoglobin over time"))
+        else:
+            parts.append(f"<p>One frame ({frames[0]}): hemoglobin over time needs two; the "
+                         "table below has its region means.</p>")
         parts.append("<h3>Region summary (the layout of the supplement's Table 2)</h3>")
         parts.append(table2_html(summary, truth_summary, frames))
+    std_text = (" Beside each chromophore map: its posterior standard deviation (same unit)."
+                if has_std else "")
     return ("<p>Melanin (C_m), eumelanin ratio (beta_m) and hemoglobin of the epidermis "
             "(C_h_out) and dermis (C_h_in), fitted to the subsurface albedo of every "
-            "band (eq. 40-47). Flagged texels are grey.</p>" + "\n".join(parts))
+            "band (eq. 40-47). Flagged texels (no confident input) are grey in every panel."
+            f"{std_text}</p>" + "\n".join(parts))
 
 
 def merged_region_summary(maps, frames, masks):
@@ -390,7 +513,7 @@ def table2_html(summary, truth_summary, frames) -> str:
                                 "</td>" for p in BIO_PARAMETERS)
                 rows.append(f"<tr><td>{html.escape(region)}</td><td>{frame}</td>"
                             f"<td>{label}</td>{cells}</tr>")
-    return (f"<table><tr><th>region</th><th>frame</th><th></th>{header}</tr>"
+    return (f"<table><tr><th>region</th><th>frame</th><th>source</th>{header}</tr>"
             + "".join(rows) + "</table>")
 
 
@@ -398,7 +521,7 @@ def rerender_section(data, variant) -> str:
 
     frame = _static_frame(data)
     maps = data.maps["static"][frame]
-    holdout = list(data.manifest.settings.get("holdout") or [])
+    holdout = _holdout(data)
     if holdout:
         camera, why = holdout[0], "held out of the fit"
     else:
@@ -416,7 +539,7 @@ def rerender_section(data, variant) -> str:
             f"I_s {100 * errors['relative_rmse_I_s']:.2f}%, I_sss "
             f"{100 * errors['relative_rmse_I_sss']:.2f}% of the mean captured I_sss.</p>"
             + _image(rerender_png(camera, band, observed[band], view["images"][band],
-                                  view["mask"], "linear radiance"), "re-rendered view"))
+                                  view["mask"], RADIANCE_UNIT), "re-rendered view"))
 
 
 def losses_section(data) -> str:
@@ -431,14 +554,66 @@ def losses_section(data) -> str:
 
 
 # --------------------------------------------------------------------------- metrics table
+LOSES = "no better than the best constant map"
+"""The mark of a map whose error is not below the best constant map's."""
+
+
 def _ratio(constant, value):
     if value is None or constant is None or not value > 0:
         return "-"
     return f"{constant / value:.2f}x"
 
 
+def loses_to_constant(value, constant) -> bool:
+    """Whether a map's error ``value`` is not below the best constant map's ``constant``
+    (errors in one unit; None when either is unknown)."""
+    return value is not None and constant is not None and value >= constant
+
+
+def losing_maps(evaluation) -> dict:
+    """Maps whose error is not below the best constant map's, with the figures as text:
+    ``{"static": {name: text}, "bio": {frame: {name: text}}}`` (empty without truth)."""
+    found = {"static": {}, "bio": {}}
+    if not evaluation:
+        return found
+    static = (evaluation.get("static") or {}).get("maps") or {}
+    for name in ("eta", "alpha_s", "alpha_ss", "displacement"):
+        entry = static.get(name)
+        if entry and loses_to_constant(entry.get("mae"), entry.get("constant_mae")):
+            found["static"][name] = (f"{LOSES} (MAE {entry['mae']:.4g} against the constant "
+                                     f"map's {entry['constant_mae']:.4g})")
+    relative = [(name, static.get(name)) for name in ("rho_s", "rho_ss")]
+    relative += [(f"rho_sss.{band}", entry) for band, entry in
+                 ((static.get("rho_sss") or {}).get("bands") or {}).items()]
+    for name, entry in relative:
+        if entry and loses_to_constant(entry.get("relative_error"),
+                                       entry.get("constant_relative_error")):
+            found["static"][name] = (f"{LOSES} (relative error "
+                                     f"{100 * entry['relative_error']:.2f}% against the "
+                                     f"constant map's "
+                                     f"{100 * entry['constant_relative_error']:.2f}%)")
+    for frame, entry in (evaluation.get("bio") or {}).items():
+        for name, scores in (entry.get("maps") or {}).items():
+            if loses_to_constant(scores.get("mae_of_range"),
+                                 scores.get("constant_mae_of_range")):
+                found["bio"].setdefault(str(frame), {})[name] = (
+                    f"{LOSES} in frame {frame} (MAE {100 * scores['mae_of_range']:.1f}% of the "
+                    f"Table 2 range against the constant map's "
+                    f"{100 * scores['constant_mae_of_range']:.1f}%)")
+    return found
+
+
+def _mark(loses) -> str:
+    return f' class="loses" title="{LOSES}"' if loses else ""
+
+
+def _verdict(loses) -> str:
+    return f"<td{_mark(loses)}>{LOSES}</td>" if loses else "<td></td>"
+
+
 def metrics_html(evaluation) -> str:
-    """The evaluate figures of every stage as HTML tables."""
+    """The evaluate figures of every stage as HTML tables; a map that does not beat the best
+    constant map is marked (:data:`LOSES`)."""
     parts = []
     static = evaluation.get("static")
     if static:
@@ -446,10 +621,13 @@ def metrics_html(evaluation) -> str:
         rows = []
         for name in ("eta", "alpha_s", "alpha_ss", "displacement"):
             entry = maps[name]
-            rows.append(f"<tr><td>{name}</td><td>MAE</td><td>{entry['mae']:.4f}</td>"
+            loses = loses_to_constant(entry["mae"], entry["constant_mae"])
+            rows.append(f"<tr{_mark(loses)}><td>{name}</td><td>MAE</td>"
+                        f"<td>{entry['mae']:.4f}</td>"
                         f"<td>{entry['constant_mae']:.4f}</td>"
                         f"<td>{_ratio(entry['constant_mae'], entry['mae'])}</td>"
-                        f"<td>{html.escape(entry.get('unit', '1'))}</td></tr>")
+                        f"<td>{html.escape(unit_label(entry.get('unit', '1')))}</td>"
+                        f"{_verdict(loses)}</tr>")
         relative = [(name, maps[name]) for name in ("rho_s", "rho_ss")]
         relative += [(f"rho_sss.{band}", entry) for band, entry in
                      maps["rho_sss"]["bands"].items()]
@@ -457,38 +635,41 @@ def metrics_html(evaluation) -> str:
             value, constant = entry["relative_error"], entry["constant_relative_error"]
             if value is None:
                 continue
-            rows.append(f"<tr><td>{name}</td><td>relative error</td><td>{100 * value:.2f}%</td>"
+            loses = loses_to_constant(value, constant)
+            rows.append(f"<tr{_mark(loses)}><td>{name}</td><td>relative error</td>"
+                        f"<td>{100 * value:.2f}%</td>"
                         f"<td>{100 * constant:.2f}%</td><td>{_ratio(constant, value)}</td>"
-                        "<td></td></tr>")
+                        f"<td>unitless</td>{_verdict(loses)}</tr>")
         normal = maps["normal"]
-        rows.append(f"<tr><td>normals</td><td>mean angle</td><td>{normal['mean_deg']:.2f}</td>"
+        loses = loses_to_constant(normal["mean_deg"], normal["base_mesh_mean_deg"])
+        rows.append(f"<tr{_mark(loses)}><td>normals</td><td>mean angle</td>"
+                    f"<td>{normal['mean_deg']:.2f}</td>"
                     f"<td>{normal['base_mesh_mean_deg']:.2f} (base mesh)</td>"
                     f"<td>{_ratio(normal['base_mesh_mean_deg'], normal['mean_deg'])}</td>"
-                    "<td>degree</td></tr>")
+                    f"<td>degree</td>"
+                    + (f'<td class="loses">no better than the base mesh</td>' if loses
+                       else "<td></td>") + "</tr>")
         parts.append(f"<h3>Static stage (frame {static['frame']}, "
                      f"{static['texels_scored']:,} texels scored)</h3>"
                      "<table><tr><th>map</th><th>score</th><th>recovered</th>"
-                     "<th>best constant map</th><th>constant / recovered</th><th>unit</th></tr>"
-                     + "".join(rows) + "</table>")
+                     "<th>best constant map</th><th>constant / recovered</th><th>unit</th>"
+                     "<th>verdict</th></tr>" + "".join(rows) + "</table>")
         holdout = static.get("holdout")
         if holdout and holdout.get("cameras"):
-            cells = "".join(
-                f"<tr><td>{html.escape(name)}</td>"
-                f"<td>{100 * entry['mean']['relative_rmse_I_s']:.2f}%</td>"
-                f"<td>{100 * entry['mean']['relative_rmse_I_sss']:.2f}%</td>"
-                f"<td>{entry['pixels']:,}</td></tr>"
-                for name, entry in holdout["cameras"].items())
-            parts.append("<h3>Held-out views, re-rendered (RMSE of the mean captured I_sss, "
-                         f"{holdout['spp']} spp)</h3><table><tr><th>camera</th><th>I_s</th>"
-                         f"<th>I_sss</th><th>pixels</th></tr>{cells}</table>")
+            parts.append(holdout_html(holdout))
     dynamic = evaluation.get("dynamic") or {}
     if dynamic:
         rows = []
         for frame, entry in sorted(dynamic.items(), key=lambda kv: int(kv[0])):
             maps = entry["maps"]
-            rows.append(f"<tr><td>{frame}</td><td>{maps['eta']['mae']:.4f}</td>"
-                        f"<td>{maps['alpha_s']['mae']:.4f}</td>"
-                        f"<td>{100 * maps['rho_s']['relative_error']:.2f}%</td>"
+            cells = []
+            for name in ("eta", "alpha_s"):
+                loses = loses_to_constant(maps[name]["mae"], maps[name]["constant_mae"])
+                cells.append(f"<td{_mark(loses)}>{maps[name]['mae']:.4f}</td>")
+            loses = loses_to_constant(maps["rho_s"]["relative_error"],
+                                      maps["rho_s"]["constant_relative_error"])
+            cells.append(f"<td{_mark(loses)}>{100 * maps['rho_s']['relative_error']:.2f}%</td>")
+            rows.append(f"<tr><td>{frame}</td>{''.join(cells)}"
                         f"<td>{100 * maps['rho_sss']['mean_relative_error']:.2f}%</td>"
                         f"<td>{maps['normal']['mean_deg']:.2f}</td></tr>")
         parts.append("<h3>Dynamic stage, per frame</h3><table><tr><th>frame</th>"
@@ -500,15 +681,62 @@ def metrics_html(evaluation) -> str:
         header = "".join(f"<th>{p}</th>" for p in BIO_PARAMETERS)
         rows = []
         for frame, entry in sorted(bio.items(), key=lambda kv: int(kv[0])):
-            cells = "".join(
-                f"<td>{100 * entry['maps'][p]['mae_of_range']:.1f}% "
-                f"({100 * entry['maps'][p]['constant_mae_of_range']:.1f}%)</td>"
-                for p in BIO_PARAMETERS)
-            rows.append(f"<tr><td>{frame}</td>{cells}</tr>")
+            cells = []
+            for p in BIO_PARAMETERS:
+                scores = entry["maps"][p]
+                loses = loses_to_constant(scores["mae_of_range"],
+                                          scores["constant_mae_of_range"])
+                cells.append(f"<td{_mark(loses)}>{100 * scores['mae_of_range']:.1f}% "
+                             f"({100 * scores['constant_mae_of_range']:.1f}%)</td>")
+            rows.append(f"<tr><td>{frame}</td>{''.join(cells)}</tr>")
         parts.append("<h3>Biophysical stage: MAE as a fraction of the Table 2 range (best "
-                     "constant map in parentheses)</h3>"
+                     "constant map in parentheses; red: no better than it)</h3>"
                      f"<table><tr><th>frame</th>{header}</tr>{''.join(rows)}</table>")
+    losers = losing_maps(evaluation)
+    names = list(losers["static"]) + sorted({n for per in losers["bio"].values() for n in per})
+    if names:
+        parts.insert(0, f'<p class="loses">{len(names)} map(s) {LOSES} (a map equal to the '
+                        f"truth's mean everywhere): {html.escape(', '.join(names))}; they "
+                        "are marked in red below and beside their figures.</p>")
     return "\n".join(parts)
+
+
+def holdout_html(holdout) -> str:
+    """The held-out re-render errors (:func:`polarbssrdf.inverse.evaluation.rerender
+    .holdout_errors`) as an HTML table."""
+    cells = "".join(
+        f"<tr><td>{html.escape(name)}</td>"
+        f"<td>{100 * entry['mean']['relative_rmse_I_s']:.2f}%</td>"
+        f"<td>{100 * entry['mean']['relative_rmse_I_sss']:.2f}%</td>"
+        f"<td>{entry['pixels']:,}</td></tr>"
+        for name, entry in holdout["cameras"].items())
+    return ("<h3>Held-out views, re-rendered (RMSE of the mean captured I_sss, "
+            f"{holdout['spp']} spp)</h3><table><tr><th>camera</th><th>I_s</th>"
+            f"<th>I_sss</th><th>pixels</th></tr>{cells}</table>")
+
+
+def confidence_warning(data) -> str:
+    """A sentence for the top of the page when most of the surface (more than
+    ``1 - LOW_CONFIDENT_FRACTION`` of the texels on the mesh) has confidence 0 (""
+    otherwise): the fraction, and what it means for the maps."""
+    static = data.maps.get("static")
+    frame = _static_frame(data)
+    if not static or frame not in static:
+        return ""
+    valid = np.asarray(data.atlas.valid, bool)
+    on_mesh = int(valid.sum())
+    if not on_mesh:
+        return ""
+    zero = float(np.mean(np.asarray(static[frame]["confidence"])[valid] <= 0))
+    if 1.0 - zero >= LOW_CONFIDENT_FRACTION:
+        return ""
+    cameras = {r.camera for r in data.capture.manifest.frame(frame).images
+               if r.kind in ("analyser", "raw")} - set(_holdout(data))
+    views = f" ({len(cameras)} views fitted)" if cameras else ""
+    return (f'<p class="warning">{100 * zero:.0f}% of the surface{views} has confidence 0: '
+            "too few views saw it, or its fit is far worse than the median. Those texels are "
+            "grey in every map and hold the prior or their neighbours' values, not "
+            "measurements; add views that cover them.</p>")
 
 
 # --------------------------------------------------------------------------- page
@@ -523,6 +751,10 @@ td, th { border: 1px solid #ccc; padding: .25em .6em; text-align: right; }
 td:first-child, th:first-child { text-align: left; }
 nav a { margin-right: 1em; } .meta { color: #555; } code { background: #f3f3f3; }
 #image-warning { color: #c00; font-weight: bold; }
+.grid { display: grid; grid-template-columns: repeat(auto-fill, minmax(300px, 1fr));
+        gap: 0 1em; align-items: start; }
+.loses { color: #b00; } tr.loses td, td.loses { background: #fde8e8; }
+.warning { border-left: 4px solid #c60; background: #fff4e5; padding: .4em .8em; }
 """
 
 IMAGE_CHECK = """
@@ -535,6 +767,7 @@ window.addEventListener("load", function () {
   }
   document.body.setAttribute("data-images", String(images.length));
   document.body.setAttribute("data-images-broken", String(broken));
+  document.body.setAttribute("data-height", String(document.documentElement.scrollHeight));
   if (broken) {
     var warning = document.getElementById("image-warning");
     warning.textContent = broken + " image(s) failed to load";
@@ -589,7 +822,9 @@ def build_report_html(data, *, variant=DEFAULT_VARIANT, title=None,
 
     created = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     truth_note = ("with ground truth (synthetic capture)" if data.truth else
-                  "without ground truth: maps, losses and re-rendering residuals only")
+                  f"without ground truth ({html.escape(data.no_truth_reason or 'none')}): "
+                  "maps, losses and re-rendering residuals only")
+    warning = confidence_warning(data)
     extra = "".join(f"<br>{html.escape(str(k))}: {html.escape(str(v))}"
                     for k, v in (extra_metrics or {}).items())
     nav = " ".join(f'<a href="#{a}">{html.escape(h)}</a>' for a, h, _ in sections)
@@ -607,6 +842,7 @@ def build_report_html(data, *, variant=DEFAULT_VARIANT, title=None,
 frames {frame_text}; bands {', '.join(data.bands)}.
 {_timings_text(data.timings)}{extra}<br>Written {created} by polarbssrdf.report.page.</p>
 <p id="image-warning"></p>
+{warning}
 <nav>{nav}</nav>
 {body}
 <script>{IMAGE_CHECK}</script>

@@ -130,6 +130,29 @@ def test_summary(run):
     text = run["stdout"]
     assert "texel-views" in text and "static/maps_f0000.exr" in text
     assert " s)" in text and "held out cam03" in text
+    # a synthetic capture with truth at the run's size: the closing line says how to score it
+    assert text.rstrip().splitlines()[-1].endswith(
+        f"score it with 'polarbssrdf evaluate {run['outdir']}', see it with "
+        f"'polarbssrdf report {run['outdir']}'")
+
+
+def test_the_documented_example_output_matches_a_run(run, capture_dir):
+    """docs/reconstruct.md's example said 16 channels where a run writes 17 (issue 21,
+    item 15): its channel count and closing line are those of a run."""
+    import pathlib
+    import re
+    from types import SimpleNamespace
+
+    from polarbssrdf.inverse.commands import closing_line
+
+    doc = (pathlib.Path(__file__).resolve().parents[2] / "docs" / "reconstruct.md").read_text()
+    documented = re.search(r"\((\d+) channels, 20 epochs", doc)
+    printed = re.search(r"\((\d+) channels, 2 epochs", run["stdout"])
+    assert documented and printed
+    assert int(documented.group(1)) == int(printed.group(1)) == len(expected_channels(
+        capture_dir))
+    truth = SimpleNamespace(texture_size=64, maps=[SimpleNamespace(frame=0)])
+    assert closing_line("result", 0, ["cam03"], 64, SimpleNamespace(truth=truth)) in doc
 
 
 def test_capture_is_never_modified(run):

@@ -66,3 +66,255 @@ def test_metrics_table_lists_each_map_with_the_constant_map_ratio():
     page = metrics_html(evaluation)
     assert page.count("<tr>") == 1 + 4 + 3 + 1  # header, four MAEs, three albedos, normals
     assert "3.00x" in page and "2.50x" in page and "2.00x" in page
+
+
+# --------------------------------------------------------------------------- issue 21, 20
+# Hand-made report data (no capture, no render): each test builds only what the section reads.
+def _fake_data(maps=None, truth=None, evaluation=None, valid=None, holdout=(), cameras=(),
+               no_truth_reason="the capture has no ground truth", bio_summary=None):
+    from types import SimpleNamespace
+
+    from polarbssrdf.report.page import LazyFrames, ReportData
+
+    stages = {stage: LazyFrames(list(frames), lambda f, frames=frames: frames[f])
+              for stage, frames in (maps or {}).items()}
+    images = [SimpleNamespace(camera=c, kind="analyser") for c in cameras]
+    capture = SimpleNamespace(manifest=SimpleNamespace(
+        frame=lambda f: SimpleNamespace(images=images), band_names=("G",)))
+    manifest = SimpleNamespace(settings={"frame": 0, "holdout": list(holdout)},
+                               units={"eta": "1", "displacement": "mm", "rho_sss": "1"})
+    data = ReportData(result_dir=None, manifest=manifest, capture=capture,
+                      atlas=SimpleNamespace(valid=valid), maps=stages,
+                      truth=LazyFrames(list(truth), truth.__getitem__) if truth else {},
+                      evaluation=evaluation, bio_summary=bio_summary)
+    data.no_truth_reason = None if truth else no_truth_reason
+    return data
+
+
+def test_dimensionless_colour_bars_read_unitless_not_1():
+    from polarbssrdf.report import figures
+
+    figure = figures._figure(3, 3)
+    figures._map_axes(figure.add_subplot(1, 1, 1), np.zeros((4, 4)), "eta", 0, 1, "viridis",
+                      "1", figure)
+    labels = [axes.get_ylabel() for axes in figure.axes]
+    assert "unitless" in labels and "1" not in labels
+    assert figures.unit_label("") == "unitless" and figures.unit_label("mm") == "mm"
+
+
+def test_loss_legends_do_not_cover_the_curves():
+    from polarbssrdf.report.figures import loss_curves_figure
+
+    static = [{"epoch": e, "total": 10.0 / e, "sss": 5.0 / e, "s": 3.0 / e, "psi": 1.0 / e,
+               "phi": 2.0 / e, "H_laplacian": 0.5 / e} for e in range(1, 21)]
+    dynamic = {"1": [{"epoch": e, "total": 4.0 / e} for e in range(1, 6)]}
+    bio = {"0": [{"losses": [3.0, 2.0, 1.5]}]}
+    figure = loss_curves_figure(static, dynamic, bio)
+    figure.canvas.draw()
+    renderer = figure.canvas.get_renderer()
+    plots = [axes for axes in figure.axes if axes.get_legend() is not None]
+    assert len(plots) == 3
+    for axes in plots:
+        legend = axes.get_legend().get_window_extent(renderer)
+        assert not legend.overlaps(axes.get_window_extent(renderer)), axes.get_title()
+
+
+def test_coverage_of_gaussian_errors_matches_erf_and_flags_a_wrong_std():
+    from polarbssrdf.report.calibration import COVERAGE_K, coverage_fractions, expected_coverage
+
+    assert COVERAGE_K[0] == 0.25 and COVERAGE_K[-1] == 3.0
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0.01, 0.4, (64, 64))
+    std = rng.uniform(0.002, 0.02, (64, 64))
+    recovered = truth + std * rng.normal(size=truth.shape)
+    mask = np.ones(truth.shape, bool)
+    mask[:8] = False  # 3584 texels counted
+    std_bad = std.copy()
+    std_bad[8, :4] = 0.0  # no std: not counted
+    recovered[9, :4] = np.nan  # not counted
+    fractions, texels = coverage_fractions(recovered, truth, std_bad, mask)
+    assert texels == 56 * 64 - 8
+    # binomial spread of a fraction over 3576 texels is at most 0.0084: 4 sigma
+    np.testing.assert_allclose(fractions, expected_coverage(), atol=0.034)
+    assert expected_coverage((1.0,))[0] == pytest.approx(0.6827, abs=1e-4)
+    wide, _ = coverage_fractions(recovered, truth, 2 * std, mask)  # std twice too large
+    narrow, _ = coverage_fractions(recovered, truth, std / 2, mask)  # overconfident
+    k1 = COVERAGE_K.index(1.0)
+    assert wide[k1] > 0.9 and narrow[k1] < 0.45
+    empty, none = coverage_fractions(recovered, truth, std, np.zeros(truth.shape, bool))
+    assert none == 0 and np.isnan(empty).all()
+
+
+def _bio_maps(rng, shape, with_std=True):
+    from polarbssrdf.inverse.biophysical.model import PARAMETERS
+
+    truth = {name: rng.uniform(0.02, 0.3, shape).astype(np.float32) for name in PARAMETERS}
+    maps = {}
+    for name in PARAMETERS:
+        std = rng.uniform(0.002, 0.01, shape)
+        maps[name] = (truth[name] + std * rng.normal(size=shape)).astype(np.float32)
+        if with_std:
+            maps[f"{name}_std"] = std.astype(np.float32)
+    maps["residual"] = rng.uniform(0.001, 0.01, shape).astype(np.float32)
+    maps["flagged"] = np.zeros(shape, np.float32)
+    maps["flagged"][:, :5] = 1.0
+    maps["residual"][:, :5] = 0.0  # the stage writes 0 where the input was not confident
+    if with_std:
+        maps["albedo_gain"] = np.ones(shape, np.float32)
+    return maps, truth
+
+
+def test_calibration_and_std_panels_from_a_hand_made_map_file(tmp_path):
+    """A bio map file with the posterior std channels (issue 20): the std beside each
+    chromophore, the albedo gain, and the calibration plot; none of it without them."""
+    from polarbssrdf.io.exr import read_exr, write_exr
+    from polarbssrdf.report import page
+    from polarbssrdf.report.calibration import expected_coverage
+
+    rng = np.random.default_rng(5)
+    shape = (40, 40)
+    maps, truth = _bio_maps(rng, shape)
+    path = write_exr(tmp_path / "maps_f0000.exr", maps)
+    read = {0: read_exr(path)[0]}
+    valid = np.ones(shape, bool)
+    valid[-4:] = False
+    data = _fake_data(maps={"bio": read}, truth={0: truth}, valid=valid)
+    curves = page.calibration_curves(data, [0])
+    assert sorted(curves) == sorted(page.BIO_PARAMETERS)
+    for name, (fractions, texels) in curves.items():
+        assert texels == 36 * 35  # on the mesh, not flagged
+        np.testing.assert_allclose(fractions, expected_coverage(), atol=0.06, err_msg=name)
+    panels = page._bio_panels(data, 0, read[0], truth)
+    by_name = {p[0]: p for p in panels}
+    for name in page.BIO_PARAMETERS:
+        assert by_name[name][5] is not None  # std beside the map
+    assert by_name["albedo_gain"][4] == "1" and by_name["albedo_gain"][5] is None
+    section = page.biophysical_section(data)
+    assert "Posterior calibration" in section and "posterior standard deviation" in section
+
+    plain, _ = _bio_maps(rng, shape, with_std=False)
+    path = write_exr(tmp_path / "plain.exr", plain)
+    data = _fake_data(maps={"bio": {0: read_exr(path)[0]}}, truth={0: truth}, valid=valid)
+    assert page.calibration_curves(data, [0]) == {} and page.calibration_html(data, [0]) == ""
+    panels = page._bio_panels(data, 0, data.maps["bio"][0], truth)
+    assert all(p[5] is None for p in panels) and "albedo_gain" not in {p[0] for p in panels}
+    assert "Posterior calibration" not in page.biophysical_section(data)
+
+
+def test_biophysical_residual_is_masked_like_the_chromophores(monkeypatch):
+    """The residual was drawn over the whole mesh: 0 (dark) where the other panels are grey."""
+    from polarbssrdf.report import page
+
+    drawn = {}
+
+    def record(name, recovered, truth, mask, *args, **kwargs):
+        drawn[name] = np.asarray(mask, bool).copy()
+        return b"png"
+
+    monkeypatch.setattr(page, "map_comparison_png", record)
+    monkeypatch.setattr(page, "_image", lambda png, alt: f"<img alt='{alt}'>")
+    maps, _ = _bio_maps(np.random.default_rng(1), (12, 12), with_std=False)
+    data = _fake_data(maps={"bio": {0: maps}}, valid=np.ones((12, 12), bool))
+    page.biophysical_section(data)
+    assert not drawn["residual"][:, :5].any()
+    np.testing.assert_array_equal(drawn["residual"], drawn["C_m"])
+
+
+def test_one_frame_has_no_hemoglobin_plot_and_the_region_table_labels_its_columns(monkeypatch):
+    from polarbssrdf.report import page
+
+    monkeypatch.setattr(page, "map_comparison_png", lambda *a, **k: b"png")
+    monkeypatch.setattr(page, "_image", lambda png, alt: f"<img alt='{alt}'>")
+    maps, _ = _bio_maps(np.random.default_rng(2), (12, 12), with_std=False)
+    stats = {p: {"mean": 0.1, "std": 0.01} for p in page.BIO_PARAMETERS}
+    summary = {"units": {}, "regions": {"surface": {"texels": 100,
+                                                    "frames": {"0": stats}}}}
+    data = _fake_data(maps={"bio": {0: maps}}, valid=np.ones((12, 12), bool),
+                      bio_summary=summary)
+    section = page.biophysical_section(data)
+    assert "alt='hemoglobin over time'" not in section and "Hemoglobin over time" not in section
+    assert "One frame (0)" in section
+    assert "<th></th>" not in section and "<th>source</th>" in section
+
+
+def test_metrics_mark_maps_that_lose_to_the_best_constant_map():
+    from polarbssrdf.report.page import LOSES, losing_maps, metrics_html
+
+    good = {"mae": 0.01, "constant_mae": 0.03, "unit": "1"}
+    bad = {"mae": 0.03, "constant_mae": 0.03, "unit": "1"}  # a tie loses: no information
+    relative = {"relative_error": 0.02, "constant_relative_error": 0.05}
+    worse = {"relative_error": 0.08, "constant_relative_error": 0.05}
+    bio_map = {"mae_of_range": 0.05, "constant_mae_of_range": 0.10}
+    evaluation = {"static": {"frame": 0, "texels_scored": 100, "holdout": None, "maps": {
+        "eta": good, "alpha_s": bad, "alpha_ss": good,
+        "displacement": {**good, "unit": "mm"}, "rho_s": relative, "rho_ss": worse,
+        "rho_sss": {"bands": {"G": relative}},
+        "normal": {"mean_deg": 0.5, "base_mesh_mean_deg": 1.0}}},
+        "bio": {"0": {"maps": {"C_m": {"mae_of_range": 0.2, "constant_mae_of_range": 0.1},
+                               "beta_m": bio_map, "C_h_out": bio_map, "C_h_in": bio_map}}}}
+    losers = losing_maps(evaluation)
+    assert sorted(losers["static"]) == ["alpha_s", "rho_ss"]
+    assert list(losers["bio"]["0"]) == ["C_m"]
+    page = metrics_html(evaluation)
+    rows = {row.split("<td>")[1].split("</td>")[0]: row
+            for row in page.split("<tr")[1:] if "<td>" in row}
+    assert 'class="loses"' in rows["alpha_s"] and LOSES in rows["alpha_s"]
+    assert 'class="loses"' in rows["rho_ss"]
+    assert 'class="loses"' not in rows["eta"] and 'class="loses"' not in rows["rho_s"]
+    assert "3 map(s) no better than the best constant map" in page
+    assert "<td>unitless</td>" in page and "<td>1</td>" not in page
+    assert losing_maps(None) == {"static": {}, "bio": {}}
+
+
+def test_most_of_the_surface_unconfident_is_said_at_the_top():
+    from polarbssrdf.report.page import confidence_warning
+
+    valid = np.ones((10, 10), bool)
+    valid[0] = False  # 90 texels on the mesh
+    confidence = np.full((10, 10), 0.5, np.float32)
+    confidence[1:7] = 0.0  # 60 of 90 texels: 67%
+    data = _fake_data(maps={"static": {0: {"confidence": confidence}}}, valid=valid,
+                      holdout=["cam3"], cameras=["cam0", "cam1", "cam2", "cam3"])
+    text = confidence_warning(data)
+    assert "67% of the surface (3 views fitted) has confidence 0" in text
+    confidence[1:5] = 0.5  # 20 of 90
+    assert confidence_warning(data) == ""
+
+
+def test_static_maps_without_truth_say_why_and_nothing_about_truth(monkeypatch):
+    from types import SimpleNamespace
+
+    from polarbssrdf.report import page
+
+    monkeypatch.setattr(page, "map_comparison_png", lambda *a, **k: b"png")
+    monkeypatch.setattr(page, "_image", lambda png, alt: f"<img alt='{alt}'>")
+    maps = {name: np.zeros((8, 8), np.float32) for name in page.STATIC_MAPS}
+    maps.update({"rho_sss.G": np.zeros((8, 8)), "confidence": np.ones((8, 8))})
+    data = _fake_data(maps={"static": {0: maps}}, valid=np.ones((8, 8), bool),
+                      no_truth_reason="the capture has no ground truth")
+    section = page.static_maps_section(data)
+    assert "relative to the truth" not in section and "the capture has no ground truth" in section
+    assert section.count('<div class="grid">') == 1 and section.count("<img") == 8
+
+    assert page.no_truth_reason(SimpleNamespace(truth=None), 32) == \
+        "the capture has no ground truth"
+    other = page.no_truth_reason(SimpleNamespace(truth=SimpleNamespace(texture_size=64)), 32)
+    assert "64 x 64" in other and "32 x 32" in other and "--texture 64" in other
+    assert page.no_truth_reason(SimpleNamespace(truth=SimpleNamespace(texture_size=32)),
+                                32) is None
+
+
+def test_input_views_mark_the_held_out_camera(monkeypatch):
+    from polarbssrdf.report import page
+
+    titles = []
+    monkeypatch.setattr(page, "captured_view",
+                        lambda capture, record: {"G": {"I0": np.ones((4, 4)),
+                                                       "I90": np.ones((4, 4))}})
+    monkeypatch.setattr(page, "input_views_png",
+                        lambda views, unit: titles.extend(v[0] for v in views) or b"png")
+    monkeypatch.setattr(page, "_image", lambda png, alt: f"<img alt='{alt}'>")
+    data = _fake_data(holdout=["cam1"], cameras=["cam0", "cam1", "cam2"])
+    section = page.input_views_section(data)
+    assert titles == ["cam0 (G)", "cam1 (G, held out)", "cam2 (G)"]
+    assert "cam1 was held out of the fit" in section and "W sr<sup>-1</sup>" in section

@@ -241,3 +241,29 @@ def test_holdout_of_a_raw_capture_is_compared_in_radiance(tmp_path):
               for k, v in truth.items()}
     assert holdout_errors(capture, darker, ["cam00"])["mean"]["relative_rmse_I_sss"] \
         > 2 * errors["relative_rmse_I_sss"]
+
+
+def test_evaluate_without_truth_prints_the_held_out_re_render_as_json(capture_dir,
+                                                                      truth_result_maps,
+                                                                      tmp_path):
+    """A real capture (no truth) was refused outright: its held-out re-render error existed
+    only as text in the report (issue 21, item 13)."""
+    outdir = fake_result(tmp_path / "out", capture_dir, truth_result_maps, holdout=["cam00"])
+    bare = _no_truth_copy(capture_dir, tmp_path / "bare")
+    report_path = tmp_path / "evaluation.json"
+    status, stdout, stderr = run_cli("evaluate", outdir, "--truth", bare, "--spp", "4",
+                                     "--out", report_path)
+    assert status == 0, stderr
+    printed = json.loads(stdout)
+    assert json.loads(report_path.read_text()) == printed
+    assert printed["schema"] == "polarbssrdf.evaluation" and printed["maps"] is None
+    assert printed["truth"] is None and printed["stage"] == "static"
+    camera = printed["holdout"]["cameras"]["cam00"]
+    assert camera["pixels"] > 300
+    # the truth maps re-render the capture within the local lobe's few percent
+    assert printed["holdout"]["mean"]["relative_rmse_I_sss"] < 0.05
+
+    # the bio maps are not rendered: one line saying what applies
+    status, _, stderr = run_cli("evaluate", outdir, "--truth", bare, "--stage", "bio")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1
+    assert "--stage static or dynamic" in stderr
