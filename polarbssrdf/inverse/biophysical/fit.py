@@ -780,7 +780,7 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
         Called with a message per Gauss-Newton step and per round.
     held_std : dict, optional
         Posterior standard deviation of the held maps (their ``<name>_std``
-        channels then carry it); NaN where not given.
+        channels then carry it); a held map without one has no std channel.
 
     Returns
     -------
@@ -889,8 +889,8 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
             covariance, _, J, _ = posterior_blocks(loss_fn, prior, maps, movable)
             sigma, common, figures = calibrated_noise(loss_fn, predicted, covariance, J, movable)
             noise_change = float(np.max(np.abs(np.log(sigma / loss_fn.sigma))))
-            if loss_fn.common > 0 or common > 0:
-                noise_change = max(noise_change, abs(np.log(max(common, 1e-6) / max(loss_fn.common, 1e-6))))
+            # the common part may be near 0: its change counts against the bands' noise
+            noise_change = max(noise_change, abs(common - loss_fn.common) / float(np.mean(sigma)))
             entry.update(noise=[float(v) for v in sigma], common_noise=common, residuals=figures)
             loss_fn.set_noise(sigma, common)
         if config.spread == "fit" and config.method == "gauss_newton" and spatial is not None:
@@ -914,9 +914,9 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
         values[surface.ravel()] = np.minimum(np.sqrt(np.maximum(covariance[:, k, k], 0.0)), high - low)
         std[name] = values.reshape(shape).astype(np.float32)
     for name in held:
-        given = (held_std or {}).get(name)
-        std[name] = (np.full(shape, np.nan, np.float32) if given is None
-                     else np.asarray(given, np.float32))
+        given = held_std.get(name)
+        if given is not None:  # a held map of unknown spread gets no std channel
+            std[name] = np.asarray(given, np.float32)
     predicted = model.render_numpy(maps)
     if with_gain:
         predicted = predicted * maps[GAIN][None].astype(np.float32)
