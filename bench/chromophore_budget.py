@@ -31,7 +31,9 @@ Rows (``--rows``; the default is all of the demo-face rows):
 ``views_32``
 ``no_diffusion``   a capture whose subsurface light is not diffused across
                    texels (``SynthesisSettings(subsurface_diffusion=False)``),
-                   so the polarimetric stages' per-texel model is exact
+                   so the polarimetric stages' per-texel model is exact;
+                   ``no_diffusion_noise_free`` the same without sensor noise
+                   (against ``noise_free``: the blur's own bias)
 ``truth_albedo``   the biophysical stage fed the truth subsurface albedo with
                    1% white (multiplicative) noise and truth eta, every
                    surface texel confident; ``truth_albedo_clean`` without the
@@ -73,7 +75,7 @@ import numpy as np
 
 PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
 DEMO_ROWS = ("raw", "noise_free", "geometry_held", "eta_held", "views_16", "views_32",
-             "no_diffusion", "truth_albedo", "truth_albedo_clean")
+             "no_diffusion", "no_diffusion_noise_free", "truth_albedo", "truth_albedo_clean")
 SWEEP_SKINS = (("forehead", "I"), ("cheek", "I"), ("forehead", "III"), ("cheek", "III"),
                ("forehead", "IV"), ("cheek", "IV"))
 TRUTH_ALBEDO_NOISE = 0.01
@@ -124,6 +126,8 @@ def demo_rows(texture, frames):
         "views_16": Row("views_16", dataclasses.replace(raw, views=16)),
         "views_32": Row("views_32", dataclasses.replace(raw, views=32)),
         "no_diffusion": Row("no_diffusion", dataclasses.replace(raw, subsurface_diffusion=False)),
+        "no_diffusion_noise_free": Row("no_diffusion_noise_free", dataclasses.replace(
+            raw, raw=False, subsurface_diffusion=False)),
         "truth_albedo": Row("truth_albedo", raw, bio_input="truth_albedo"),
         "truth_albedo_clean": Row("truth_albedo_clean", raw, bio_input="truth_albedo_clean"),
     }
