@@ -185,7 +185,7 @@ def make_capture(spec, cache, say):
 
     directory = Path(cache) / "captures" / f"T{spec.texture}_v{spec.views}_{key(dataclasses.asdict(spec))}"
     if is_done(directory):
-        return directory, 0.0
+        return directory, json.loads((directory / DONE).read_text())["seconds"]
     say(f"  synth {directory.name} ({spec})")
     started = time.perf_counter()
     settings = SynthesisSettings(object="face", views=spec.views, frames=spec.frames,
