@@ -58,6 +58,11 @@ def register(subparsers) -> None:
                         help="let glossy lobes reflect the subsurface glow of other texels "
                              "(default: off, so images follow the per-texel model the inverse "
                              "stages fit)")
+    parser.add_argument("--no-subsurface-diffusion", dest="subsurface_diffusion",
+                        action="store_false",
+                        help="leave subsurface light in the texel it entered (exitance R_bar E "
+                             "per texel, the inverse stages' per-texel model) instead of "
+                             "diffusing it through the skin's profiles (default: diffused)")
     parser.add_argument("--params", type=Path,
                         help=f"JSON file with truth settings (keys, units and defaults: "
                              f"{SETTINGS_DOC}; default: the built-in settings)")
@@ -158,7 +163,8 @@ def run(args) -> int:
     settings = SynthesisSettings(object=args.object, views=args.views, frames=args.frames,
                                  resolution=args.resolution, texture=args.texture, spp=args.spp,
                                  seed=args.seed, raw=args.raw,
-                                 interreflection=args.interreflection)
+                                 interreflection=args.interreflection,
+                                 subsurface_diffusion=args.subsurface_diffusion)
     truth_settings = load_settings(args.params) if args.params else None
     bands = read_bands(args.bands) if args.bands else shipped_default_bands()
     start = time.perf_counter()

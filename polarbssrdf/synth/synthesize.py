@@ -93,6 +93,15 @@ class SynthesisSettings:
         texels (found by BSDF sampling). Off by default: then subsurface light
         reaches the camera only directly and glossy lobes reflect only the
         camera's light, as in the per-texel model the inverse stages fit.
+    subsurface_diffusion : bool
+        Diffuse each view's transmitted irradiance in texture space through the
+        layers' profiles (eq. 46; the default, as skin does). ``False`` leaves the
+        subsurface light where it entered: the exitance of each texel is
+        ``R_bar E / c(eta)`` (:func:`subsurface_exitance`), exactly the per-texel
+        subsurface model of the polarimetric stages (``rho_sss E``), so a capture
+        made so isolates what the blur costs the inverse chain. Recorded in
+        ``capture.json`` only when ``False`` (captures made before it existed
+        resume).
     """
 
     object: str = "face"
@@ -104,6 +113,7 @@ class SynthesisSettings:
     seed: int = 0
     raw: bool = False
     interreflection: bool = False
+    subsurface_diffusion: bool = True
 
     def __post_init__(self):
         if self.object not in OBJECTS:
@@ -139,10 +149,17 @@ def subsurface_albedo(maps, bands):
     return np.moveaxis(np.asarray(reflectance, dtype=np.float32), -1, 0)
 
 
-def subsurface_exitance(irradiance, state, kernels, band_index):
-    """The ``pexitance`` map of one band: the layered exitance (eq. 46, the flux
-    ``R_bar E`` after diffusion) divided by ``c(eta)``, so that the emitted flux
-    is the multipole's (:func:`~polarbssrdf.render.subsurface.emitted_exitance`)."""
+def subsurface_exitance(irradiance, state, kernels, band_index, diffusion=True):
+    """The ``pexitance`` map of one band (W/mm^2 for ``irradiance`` in W/mm^2): the
+    layered exitance (eq. 46, the flux ``R_bar E`` after diffusion) divided by
+    ``c(eta)``, so that the emitted flux is the multipole's
+    (:func:`~polarbssrdf.render.subsurface.emitted_exitance`).
+
+    Without ``diffusion`` nothing is blurred: ``R_bar E / c(eta) = rho_sss E`` per
+    texel (``state.albedo``, eq. 47), the per-texel model of the inverse stages."""
+    if not diffusion:
+        albedo = np.asarray(state.albedo[band_index], dtype=np.float64)
+        return (albedo * np.asarray(irradiance, dtype=np.float64)).astype(np.float32)
     exitance = layered_exitance(irradiance, state.layers[band_index], kernels[band_index], state.atlas)
     return emitted_exitance(exitance, state.maps["eta"])
 
@@ -225,7 +242,8 @@ def render_frame_view(prepared, state, camera, rng=None):
     channels, channel_names = {}, None
     noise = raw_sensor(prepared.stage, camera.name) if settings.raw else None
     for band_index, band in enumerate(prepared.bands):
-        set_exitance(scene, subsurface_exitance(irradiance, state, prepared.kernels, band_index))
+        set_exitance(scene, subsurface_exitance(irradiance, state, prepared.kernels, band_index,
+                                                settings.subsurface_diffusion))
         # a distinct, reproducible sample pattern per image
         seed = image_seed(settings.seed, state.index, camera_index, band_index)
         images, channel_names = render_analyser_images(scene, settings.spp, seed, channel_names)
@@ -319,12 +337,22 @@ def capture_manifest(prepared):
               for index in range(settings.frames)]
     # everything the images depend on, so that a resume with other settings is refused
     metadata = {"generator": f"polarbssrdf {__version__} synth",
-                "settings": dataclasses.asdict(settings),
+                "settings": settings_json(settings),
                 "skin": list(prepared.truth_settings.skin),
                 "truth_settings": truth_settings_json(prepared.truth_settings)}
     return CaptureManifest(bands=prepared.bands, cameras=cameras, lights=lights, frames=frames,
                            mesh="mesh.obj", synthetic=True, truth="truth/truth.json",
                            metadata=metadata)
+
+
+def settings_json(settings):
+    """The synthesis settings as recorded in ``capture.json``: ``subsurface_diffusion`` only
+    when it is off, so a capture made before the switch existed records what it did (and
+    resumes)."""
+    record = dataclasses.asdict(settings)
+    if record["subsurface_diffusion"]:
+        del record["subsurface_diffusion"]
+    return record
 
 
 def truth_settings_json(truth_settings):
