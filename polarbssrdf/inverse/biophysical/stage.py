@@ -221,6 +221,12 @@ def write_frame(capture, outdir, frame, source, texture_size, settings, referenc
     return channels
 
 
+def reference_maps(first):
+    """What a later frame takes from the first frame's map file: the four maps and their std."""
+    wanted = (*PARAMETERS, *(f"{n}_std" for n in PARAMETERS))
+    return {name: first[name] for name in wanted if name in first}
+
+
 class FitProgress:
     """The fit's messages on a tqdm bar: a step advances it, a round's summary is its postfix."""
 
@@ -250,10 +256,8 @@ class BioFrameTask:
             dr.set_thread_count(int(self.threads))
         capture = load_capture(self.capture_dir, check_images=False, frames=[])
         first = read_stage_maps(self.outdir, STAGE, next(iter(self.sources)))
-        reference = {name: first[name] for name in first
-                     if name in PARAMETERS or name in (f"{n}_std" for n in PARAMETERS)}
         write_frame(capture, self.outdir, frame, self.sources[frame], self.texture_size,
-                    self.settings, reference)
+                    self.settings, reference_maps(first))
         return {"frame": int(frame), "seconds": round(time.perf_counter() - started, 3)}
 
 

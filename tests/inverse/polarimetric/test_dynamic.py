@@ -232,7 +232,7 @@ def test_biophysical_frames_on_workers_equal_serial_ones_and_see_the_flush(seque
     (The later frames are independent given the first, which both runs fit in-process:
     one frame re-fitted serially checks the workers, at a fifth of a serial run's cost.)
     """
-    from polarbssrdf.inverse.biophysical.stage import PARAMETERS, run_bio_stage, write_frame
+    from polarbssrdf.inverse.biophysical.stage import reference_maps, run_bio_stage, write_frame
     from polarbssrdf.variants import select_variant
     from polarbssrdf.inverse.results.directory import read_stage_maps
     from polarbssrdf.io import load_capture
@@ -249,8 +249,7 @@ def test_biophysical_frames_on_workers_equal_serial_ones_and_see_the_flush(seque
     again = root / "bio_serial"
     shutil.copytree(workers, again)
     last = FRAMES - 1
-    expected = write_frame(loaded, again, last, "dynamic", T, settings,
-                           {name: first[name] for name in PARAMETERS})
+    expected = write_frame(loaded, again, last, "dynamic", T, settings, reference_maps(first))
     for name, values in read_stage_maps(workers, "bio", last).items():
         np.testing.assert_allclose(values, expected[name], atol=1e-5, err_msg=name)
     cheeks, _ = _regions(serial)
