@@ -10,10 +10,12 @@ noise``, on the texel grid. Its negative log density is
 ``A = I + l^2 W^-1 L``, with ``W`` the texel areas (mm^2), ``L`` the graph
 Laplacian of neighbouring surface texels (pair weight ``h_perp / h_along``,
 so ``W^-1 L`` is the Laplacian in mm^-2) and ``l`` the correlation length
-(mm). The fit uses order 1 (alpha = 1): order 2 is smoother but its precision's
-condition number grows as ``(l / h)^4``, which conjugate gradients cannot
-afford at 256^2 and up (a sparse direct solve took 65-140 s per step on 2
-cores at 256^2); order 1's grows as ``(l / h)^2``. Its marginal
+(mm). The fit uses order 2 by default (``prior_order``): smooth at the texel
+scale, it pools the data of a few correlation lengths. Its precision's
+condition number grows as ``(l / h)^4``; block-Jacobi conjugate gradients do
+not converge at 128^2 and up and a sparse direct solve took 65-143 s per step
+at 256^2, so the steps are preconditioned in the Fourier domain
+(:class:`FourierPreconditioner`). Its marginal
 standard deviation is the within-face spread ``s``
 (:func:`precision_scale`). The face mean has a hyperprior: Gaussian around
 the mean of Table 2's eight rows with their spread across rows
