@@ -34,6 +34,9 @@ PRIORS = ("matern", "none")
 NOISE_MODELS = ("fit", "fixed")
 """How the albedo noise is set (:attr:`BiophysicalConfig.noise`)."""
 
+STD_NOISE_MODELS = ("correlated", "white")
+"""How the reported std treats the noise between texels (:attr:`BiophysicalConfig.std_noise`)."""
+
 
 @dataclasses.dataclass
 class BiophysicalConfig:
@@ -108,14 +111,25 @@ class BiophysicalConfig:
     gain_std : float
         Spread of ``albedo_gain``, a band-common multiplicative error of the
         input albedo fitted as a nuisance map (Matérn, mean 1, the same
-        correlation length); 0 leaves it out. The static stage's albedo error
-        is 82% common to the bands on the demo face (bench/RESULTS.md).
+        correlation length); 0 (default) leaves it out. With six bands a gain
+        is nearly confounded with melanin and blood together: on the demo face
+        the fitted gain spread to 0.72-1.11 (5-95%) with the errors of C_m,
+        C_h_out and C_h_in 0.94, 0.91 and 0.81 correlated with it, and on
+        synthetic faces it doubled C_m's error (bench/RESULTS.md, 2026-12-02);
+        the band-common part of the error is modelled as noise
+        (``common_noise``) instead.
     noise : {"fit", "fixed"}
         ``"fit"`` (default): each band's own relative noise and the
         band-common noise start at ``albedo_noise`` and ``common_noise`` and
         are re-estimated after every round from the residuals (moments over the
         degrees of freedom the posterior leaves), so the uncertainty is
         calibrated on the data; ``"fixed"`` keeps the starts.
+    std_noise : {"correlated", "white"}
+        ``"correlated"`` (default): the ``<map>_std`` channels account for the
+        noise's correlation between neighbouring texels, measured on the
+        whitened residuals (offsets up to 3 texels), by a sandwich covariance
+        (:func:`~polarbssrdf.inverse.biophysical.prior.posterior_covariance`);
+        ``"white"`` takes the noise as independent between texels.
     smoothness : float or dict
         Weight of an extra smoothness penalty per map (one number for all, or
         ``name -> weight``): the mean over neighbouring texel pairs of the
@@ -151,11 +165,12 @@ class BiophysicalConfig:
     prior_mean: dict = dataclasses.field(default_factory=lambda: {n: list(v) for n, v in population_prior().items()})
     correlation_mm: float = DEFAULT_CORRELATION_MM
     prior_order: int = 2
-    gain_std: float = 0.03
+    gain_std: float = 0.0
     face_means: str = "blocks"
     hold_uninformed: bool = True
     mean_block_mm: float = 16.0
     noise: str = "fit"
+    std_noise: str = "correlated"
     spread: str = "fit"
     smoothness: object = 0.0
     albedo_noise: float = 0.01
@@ -211,6 +226,7 @@ class BiophysicalConfig:
         check_string(self.prior, "prior", PRIORS)
         check_string(self.noise, "noise", NOISE_MODELS)
         check_string(self.spread, "spread", NOISE_MODELS)
+        check_string(self.std_noise, "std_noise", STD_NOISE_MODELS)
         check_string(self.face_means, "face_means", ("blocks", "joint"))
         check_boolean(self.hold_uninformed, "hold_uninformed")
         check_number(self.mean_block_mm, "mean_block_mm")

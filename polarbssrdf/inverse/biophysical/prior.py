@@ -36,7 +36,7 @@ mode (:func:`mean_mode_covariance`).
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
+from scipy import fft, sparse
 
 from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD
 
@@ -192,7 +192,41 @@ def prior_variance_factor(correlation_mm, area_mm2, order=1):
                   axis=0).reshape(area.shape)
 
 
-def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1):
+def noise_spectrum(correlation, bins=SPECTRUM_BINS, grid=1024):
+    """The noise's power spectrum ``S`` relative to white noise, per node of :func:`lattice_spectrum`.
+
+    ``correlation``: ``(dy, dx) -> rho`` the noise's correlation between texels
+    ``(dy, dx)`` apart (``(0, 0)`` is 1), measured on the fit's whitened
+    residuals (:func:`~polarbssrdf.inverse.biophysical.fit.residual_correlation`).
+    Made symmetric in the sign of each offset, ``S(theta) = sum rho(dy, dx) cos(dy
+    theta_u) cos(dx theta_v)`` (the Wiener-Khinchin theorem on the lattice) is averaged
+    over the texel frequencies of each ``ln lambda`` bin of :func:`lattice_spectrum`
+    and clipped at 0; its zone average is 1, white noise gives 1 everywhere."""
+
+    radius = max(max(abs(dy), abs(dx)) for dy, dx in correlation)
+    rho = np.zeros((radius + 1, radius + 1))
+    counts = np.zeros_like(rho)
+    for (dy, dx), value in correlation.items():
+        rho[abs(dy), abs(dx)] += value
+        counts[abs(dy), abs(dx)] += 1
+    rho = np.where(counts > 0, rho / np.maximum(counts, 1), 0.0)
+    rho[0, 0] = 1.0
+    theta = (np.arange(grid) + 0.5) * np.pi / grid
+    lags = np.arange(radius + 1)
+    # both signs of a non-zero offset: cos(d theta) twice
+    cosines = np.cos(theta[:, None] * lags[None, :]) * np.where(lags == 0, 1.0, 2.0)[None, :]
+    spectrum = np.maximum(cosines @ rho @ cosines.T, 0.0).ravel()
+    half = np.sin(theta / 2.0) ** 2
+    values = 4.0 * (half[:, None] + half[None, :]).ravel()
+    edges = np.geomspace(values.min(), 8.0 + 1e-9, int(bins) + 1)
+    which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, int(bins) - 1)
+    count = np.bincount(which, minlength=int(bins)).astype(np.float64)
+    total = np.bincount(which, weights=spectrum, minlength=int(bins))
+    keep = count > 0
+    return total[keep] / count[keep]
+
+
+def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1, spectrum=None):
     """Per-texel posterior covariance ``(n, k, k)`` of k Matérn maps given local data precision.
 
     Parameters
@@ -212,13 +246,24 @@ def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1
     an unbounded grid of equal square texels and data constant in space; a
     texel at the surface's edge (fewer neighbours) is more uncertain than this
     says. Excludes the face mean's own uncertainty (:func:`mean_mode_covariance`).
+
+    With ``spectrum`` (:func:`noise_spectrum`: data noise correlated between
+    texels, power ``s`` per frequency relative to white) the covariance of the
+    posterior mode's error is the sandwich ``(C + Q)^-1 (s C + Q) (C + Q)^-1``
+    per frequency (the fit still weighs the data as white; for ``s = 1`` it is
+    ``(C + Q)^-1``).
     """
 
     values, vectors, scale = _whitened_eigen(data_precision, tau2)
     unit = _unit_symbol(area_mm2, correlation_mm, order)  # (bins, n)
     lam, weight = lattice_spectrum()
     # (C + u diag(1/tau2))^-1 = S V diag(1 / (values + u)) V^T S with S = diag(tau)
-    inverse_sum = np.einsum("j,jnk->nk", weight, 1.0 / (values[None] + unit[:, :, None]))
+    denominator = values[None] + unit[:, :, None]
+    if spectrum is None:
+        inverse_sum = np.einsum("j,jnk->nk", weight, 1.0 / denominator)
+    else:
+        s = np.asarray(spectrum, np.float64)[:, None, None]
+        inverse_sum = np.einsum("j,jnk->nk", weight, (s * values[None] + unit[:, :, None]) / denominator ** 2)
     covariance = np.einsum("nik,nk,njk->nij", vectors, inverse_sum, vectors)
     return covariance * scale[None, :, None] * scale[None, None, :]
 
@@ -352,9 +397,10 @@ class FourierPreconditioner:
         n, k = x.shape
         grid = np.zeros((self.shape[0] * self.shape[1], k))
         grid[self.index] = x
-        spectrum = np.fft.rfft2(grid.reshape(*self.shape, k), axes=(0, 1))
-        spectrum = np.einsum("uvij,uvj->uvi", self.inverse, spectrum)
-        out = np.fft.irfft2(spectrum, s=self.shape, axes=(0, 1)).reshape(-1, k)
+        # scipy's FFT threads over the k maps (workers=-1: every core)
+        spectrum = fft.rfft2(grid.reshape(*self.shape, k), axes=(0, 1), workers=-1)
+        spectrum = np.matmul(self.inverse, spectrum[..., None])[..., 0]
+        out = fft.irfft2(spectrum, s=self.shape, axes=(0, 1), workers=-1).reshape(-1, k)
         return out[self.index]
 
 

@@ -6,7 +6,9 @@ import pytest
 from polarbssrdf.inverse.biophysical.prior import (
     FourierPreconditioner,
     SpatialPrior,
+    lattice_spectrum,
     mean_mode_covariance,
+    noise_spectrum,
     population_prior,
     posterior_covariance,
     within_face_spread,
@@ -107,6 +109,43 @@ def test_the_fourier_preconditioner_inverts_the_system_for_constant_data():
     assert np.max(error) < 0.05 * np.max(np.abs(x))
 
 
+def test_the_noise_spectrum_is_the_lattice_transform_of_the_correlation():
+    """Nearest-neighbour correlation rho gives ``S = 1 + 4 rho - rho lambda`` (exact: linear in
+    lambda, so also per bin); any correlation averages to 1 over the zone (the variance is
+    kept), white noise is 1 everywhere."""
+    lam, weight = lattice_spectrum()
+    rho = 0.2
+    spectrum = noise_spectrum({(0, 1): rho, (0, -1): rho, (1, 0): rho, (-1, 0): rho})
+    np.testing.assert_allclose(spectrum, 1.0 + 4.0 * rho - rho * lam, rtol=1e-6, atol=1e-6)
+    assert np.sum(weight * noise_spectrum({(0, 1): 0.1, (1, 1): 0.05, (2, -1): -0.02})) == pytest.approx(1.0, abs=1e-6)
+    np.testing.assert_allclose(noise_spectrum({(0, 1): 0.0}), 1.0)
+
+
+def test_the_sandwich_covariance_matches_the_dense_one_under_correlated_noise():
+    """Data noise correlated between horizontal and vertical neighbours (rho 0.2): the
+    quadrature's variance at the centre texel against ``H^-1 (C^1/2 R C^1/2 + Q) H^-1``
+    of the whole grid (``R`` the noise correlation, ``H = C + Q`` what the fit weighs
+    with); correlated noise leaves the estimate more uncertain than white noise says."""
+    prior = grid_prior(2)
+    n = T * T
+    tau2 = prior.tau2(0.01)
+    c = 1.0 / 0.004 ** 2
+    Q = prior.unit.toarray() / tau2
+    rho = 0.2
+    yy, xx = np.divmod(np.arange(n), T)
+    neighbours = (np.abs(yy[:, None] - yy[None]) + np.abs(xx[:, None] - xx[None])) == 1
+    R = np.eye(n) + rho * neighbours
+    H_inverse = np.linalg.inv(c * np.eye(n) + Q)
+    dense = H_inverse @ (c * R + Q) @ H_inverse
+    centre = (T // 2) * T + T // 2
+    spectrum = noise_spectrum({(0, 1): rho, (0, -1): rho, (1, 0): rho, (-1, 0): rho})
+    quadrature = posterior_covariance(np.full((1, 1, 1), c), np.array([H * H]), [tau2], L, 2, spectrum=spectrum)
+    assert quadrature[0, 0, 0] == pytest.approx(dense[centre, centre], rel=0.03)
+    white = posterior_covariance(np.full((1, 1, 1), c), np.array([H * H]), [tau2], L, 2)
+    assert white[0, 0, 0] == pytest.approx(H_inverse[centre, centre], rel=0.03)
+    assert quadrature[0, 0, 0] > 1.2 * white[0, 0, 0]
+
+
 def test_population_prior_and_within_face_spread_come_from_table2():
     hyper = population_prior()
     spread = within_face_spread()
@@ -135,7 +174,7 @@ def test_the_gauss_newton_step_solves_the_joint_system_of_maps_and_face_means():
     J = rng.standard_normal((n, 6, 2)) * np.array([300.0, 100.0]) * rng.uniform(0.5, 2.0, (n, 1, 1))
     blocks = np.einsum("nbi,nbj->nij", J, J)
     rhs_x, rhs_mu = rng.standard_normal((n, 2)), rng.standard_normal(2)
-    step, step_mu = _solve_step(blocks, terms, rhs_x, rhs_mu, damping=0.0, rtol=1e-8, max_iterations=2000)
+    step, step_mu, _ = _solve_step(blocks, terms, rhs_x, rhs_mu, damping=0.0, rtol=1e-8, max_iterations=2000)
     Q = prior.unit.toarray()
     inverse_tau2 = 1.0 / terms.tau2
     dense = np.zeros((2 * n + 2, 2 * n + 2))
@@ -148,6 +187,38 @@ def test_the_gauss_newton_step_solves_the_joint_system_of_maps_and_face_means():
     solution = np.linalg.solve(dense, np.concatenate([rhs_x.ravel(), rhs_mu]))
     np.testing.assert_allclose(step.ravel(), solution[:2 * n], rtol=1e-4, atol=1e-6 * np.abs(solution).max())
     np.testing.assert_allclose(step_mu, solution[2 * n:], rtol=1e-4, atol=1e-6 * np.abs(solution).max())
+
+
+def test_the_step_holds_the_active_set_and_predicts_the_quadratic_models_decrease():
+    """With some values fixed (at a bound), _solve_step against the dense solve of the system
+    with those rows and columns removed; its predicted decrease against ``r.d - d.H d / 2``
+    of the undamped dense system, also with damping on."""
+    from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
+    from polarbssrdf.inverse.biophysical.fit import PriorTerms, _solve_step
+
+    texels = 16
+    prior = grid_prior(2, texels)
+    n = texels * texels
+    config = BiophysicalConfig(prior_std={"C_m": 0.004, "C_h_out": 0.01},
+                               prior_mean={"C_m": [0.05, 0.0], "C_h_out": [0.07, 0.0]})
+    terms = PriorTerms(["C_m", "C_h_out"], prior, config, {"C_m": 0.05, "C_h_out": 0.07})
+    rng = np.random.default_rng(12)
+    J = rng.standard_normal((n, 6, 2)) * np.array([300.0, 100.0]) * rng.uniform(0.5, 2.0, (n, 1, 1))
+    blocks = np.einsum("nbi,nbj->nij", J, J)
+    rhs_x = rng.standard_normal((n, 2))
+    fixed = rng.uniform(size=(n, 2)) < 0.1
+    H = _block_diagonal(blocks) + np.kron(prior.unit.toarray(), np.diag(1.0 / terms.tau2))
+    free = ~fixed.ravel()
+    for damping in (0.0, 0.3):
+        step, step_mu, predicted = _solve_step(blocks, terms, rhs_x, np.zeros(2), damping=damping, rtol=1e-10,
+                                               max_iterations=3000, fixed=fixed)
+        assert np.all(step[fixed] == 0.0) and np.all(step_mu == 0.0)
+        damped = H + damping * np.diag(np.diag(H))
+        expected = np.zeros(2 * n)
+        expected[free] = np.linalg.solve(damped[np.ix_(free, free)], rhs_x.ravel()[free])
+        np.testing.assert_allclose(step.ravel(), expected, rtol=1e-5, atol=1e-7 * np.abs(expected).max())
+        d = expected
+        assert predicted == pytest.approx(rhs_x.ravel() @ d - 0.5 * d @ H @ d, rel=1e-6)
 
 
 def _block_diagonal(blocks):

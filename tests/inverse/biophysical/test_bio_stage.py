@@ -138,7 +138,7 @@ def test_reconstruct_runs_static_then_bio_and_registers_the_maps(small_capture):
     records = {(r["stage"], r["frame"]) for r in read_result(outdir).maps}
     assert records == {("static", 0), ("bio", 0)}
     maps = read_stage_maps(outdir, "bio", 0)
-    assert set(maps) == {*PARAMETERS, *(f"{n}_std" for n in PARAMETERS), "albedo_gain", "albedo_gain_std",
+    assert set(maps) == {*PARAMETERS, *(f"{n}_std" for n in PARAMETERS),
                          "residual", "flagged"}
     surface = maps["flagged"] == 0
     for name in PARAMETERS:  # a posterior spread where the maps are: positive, below the bounds' range

@@ -280,3 +280,27 @@ def test_the_adam_method_lowers_the_loss_and_keeps_the_bounds(face):
         BiophysicalConfig(method="newton")
     with pytest.raises(ValueError, match="prior"):
         fit_biophysical(inputs, bands, atlas, BiophysicalConfig(method="adam", iterations=1, rounds=1))
+
+
+def test_residual_correlation_measures_the_noise_between_neighbours():
+    """Residuals of noise averaged over horizontal pairs (correlation 0.5 between horizontal
+    neighbours, 0 elsewhere), six bands of their own noise level, a quarter of the texels
+    without data: the pooled whitened correlation comes out at 0.5 and 0."""
+    import types
+
+    from polarbssrdf.inverse.biophysical.fit import residual_correlation
+
+    rng = np.random.default_rng(4)
+    T, B = 96, 6
+    sigma = np.linspace(0.005, 0.02, B)
+    white = rng.standard_normal((B, T, T + 1))
+    noise = (white[:, :, 1:] + white[:, :, :-1]) / np.sqrt(2.0) * sigma[:, None, None]
+    observed = rng.uniform(0.2, 0.6, (B, T, T))
+    predicted = observed * (1.0 + noise)
+    valid = rng.uniform(size=(T, T)) > 0.25
+    loss_fn = types.SimpleNamespace(observed_numpy=observed.reshape(B, -1), sigma=sigma)
+    correlation = residual_correlation(loss_fn, [p.ravel() for p in predicted], valid)
+    assert correlation[(0, 1)] == pytest.approx(0.5, abs=0.03)
+    assert correlation[(0, -1)] == correlation[(0, 1)]
+    for offset in ((1, 0), (1, 1), (0, 2), (2, -1), (3, 3)):
+        assert abs(correlation[offset]) < 0.03, offset
