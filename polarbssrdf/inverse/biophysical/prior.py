@@ -157,7 +157,33 @@ class SpatialPrior:
         return 0.5 * float(deviation @ gradient), gradient
 
 
-_SPECTRUM = {}
+_ZONE = {}
+
+
+def _zone_bins(bins, grid):
+    """``(theta, which, count)``: the ``grid`` midpoints of (0, pi) per axis (the Brillouin
+    zone by symmetry), the ``ln lambda`` bin of each of the ``grid^2`` frequencies (flat)
+    and the frequencies per bin. Cached per ``(bins, grid)``."""
+
+    key = (int(bins), int(grid))
+    if key not in _ZONE:
+        theta = (np.arange(grid) + 0.5) * np.pi / grid
+        half = np.sin(theta / 2.0) ** 2
+        values = 4.0 * (half[:, None] + half[None, :]).ravel()
+        edges = np.geomspace(values.min(), 8.0 + 1e-9, int(bins) + 1)
+        which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, int(bins) - 1)
+        count = np.bincount(which, minlength=int(bins)).astype(np.float64)
+        _ZONE[key] = (theta, which, count)
+    return _ZONE[key]
+
+
+def _bin_average(values, bins, grid):
+    """Average per non-empty ``ln lambda`` bin of ``values`` over the zone's ``grid^2``
+    frequencies (flat, in :func:`_zone_bins`' order)."""
+    _, which, count = _zone_bins(bins, grid)
+    total = np.bincount(which, weights=values, minlength=int(bins))
+    keep = count > 0
+    return total[keep] / count[keep]
 
 
 def lattice_spectrum(bins=SPECTRUM_BINS, grid=1024):
@@ -166,20 +192,12 @@ def lattice_spectrum(bins=SPECTRUM_BINS, grid=1024):
     ``lambda = 4 (sin^2(theta_u / 2) + sin^2(theta_v / 2))`` (the unit-spacing
     5-point Laplacian's symbol, in [0, 8]) over the Brillouin zone, binned in
     ``ln lambda``: ``sum weight f(lambda)`` is the zone average of a function
-    smooth in ``ln lambda``. Cached per ``(bins, grid)``."""
+    smooth in ``ln lambda``."""
 
-    key = (int(bins), int(grid))
-    if key not in _SPECTRUM:
-        theta = (np.arange(grid) + 0.5) * np.pi / grid  # midpoints of (0, pi): the zone by symmetry
-        half = np.sin(theta / 2.0) ** 2
-        values = 4.0 * (half[:, None] + half[None, :]).ravel()
-        edges = np.geomspace(values.min(), 8.0 + 1e-9, int(bins) + 1)
-        which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, int(bins) - 1)
-        count = np.bincount(which, minlength=int(bins)).astype(np.float64)
-        total = np.bincount(which, weights=values, minlength=int(bins))
-        keep = count > 0
-        _SPECTRUM[key] = (total[keep] / count[keep], count[keep] / values.size)
-    return _SPECTRUM[key]
+    theta, _, count = _zone_bins(bins, grid)
+    half = np.sin(theta / 2.0) ** 2
+    values = 4.0 * (half[:, None] + half[None, :]).ravel()
+    return _bin_average(values, bins, grid), count[count > 0] / values.size
 
 
 def prior_variance_factor(correlation_mm, area_mm2, order=1):
@@ -211,19 +229,11 @@ def noise_spectrum(correlation, bins=SPECTRUM_BINS, grid=1024):
         counts[abs(dy), abs(dx)] += 1
     rho = np.where(counts > 0, rho / np.maximum(counts, 1), 0.0)
     rho[0, 0] = 1.0
-    theta = (np.arange(grid) + 0.5) * np.pi / grid
+    theta, _, _ = _zone_bins(bins, grid)
     lags = np.arange(radius + 1)
     # both signs of a non-zero offset: cos(d theta) twice
     cosines = np.cos(theta[:, None] * lags[None, :]) * np.where(lags == 0, 1.0, 2.0)[None, :]
-    spectrum = np.maximum(cosines @ rho @ cosines.T, 0.0).ravel()
-    half = np.sin(theta / 2.0) ** 2
-    values = 4.0 * (half[:, None] + half[None, :]).ravel()
-    edges = np.geomspace(values.min(), 8.0 + 1e-9, int(bins) + 1)
-    which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, int(bins) - 1)
-    count = np.bincount(which, minlength=int(bins)).astype(np.float64)
-    total = np.bincount(which, weights=spectrum, minlength=int(bins))
-    keep = count > 0
-    return total[keep] / count[keep]
+    return _bin_average(np.maximum(cosines @ rho @ cosines.T, 0.0).ravel(), bins, grid)
 
 
 def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1, spectrum=None):

@@ -158,21 +158,31 @@ def test_population_prior_and_within_face_spread_come_from_table2():
         assert hyper[name][1] > spread[name]
 
 
-def test_the_gauss_newton_step_solves_the_joint_system_of_maps_and_face_means():
-    """_solve_step (CG, Fourier preconditioned) against the dense solve of the system over two
-    maps and their free face means, with data blocks that vary over the grid."""
+def _two_map_system(texels, mean_std, seed):
+    """A Gauss-Newton system of C_m and C_h_out on a square grid: the prior, its
+    ``PriorTerms`` (face means of hyperprior std ``mean_std``; 0 holds a mean), data blocks
+    from six bands that vary over the grid, and the generator for right-hand sides."""
     from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
-    from polarbssrdf.inverse.biophysical.fit import PriorTerms, _solve_step
+    from polarbssrdf.inverse.biophysical.fit import PriorTerms
 
-    texels = 20
     prior = grid_prior(2, texels)
     n = texels * texels
     config = BiophysicalConfig(prior_std={"C_m": 0.004, "C_h_out": 0.01},
-                               prior_mean={"C_m": [0.05, 0.02], "C_h_out": [0.07, 0.03]})
+                               prior_mean={"C_m": [0.05, mean_std[0]], "C_h_out": [0.07, mean_std[1]]})
     terms = PriorTerms(["C_m", "C_h_out"], prior, config, {"C_m": 0.05, "C_h_out": 0.07})
-    rng = np.random.default_rng(11)
+    rng = np.random.default_rng(seed)
     J = rng.standard_normal((n, 6, 2)) * np.array([300.0, 100.0]) * rng.uniform(0.5, 2.0, (n, 1, 1))
-    blocks = np.einsum("nbi,nbj->nij", J, J)
+    return prior, terms, np.einsum("nbi,nbj->nij", J, J), rng
+
+
+def test_the_gauss_newton_step_solves_the_joint_system_of_maps_and_face_means():
+    """_solve_step (CG, Fourier preconditioned) against the dense solve of the system over two
+    maps and their free face means, with data blocks that vary over the grid."""
+    from polarbssrdf.inverse.biophysical.fit import _solve_step
+
+    texels = 20
+    n = texels * texels
+    prior, terms, blocks, rng = _two_map_system(texels, mean_std=(0.02, 0.03), seed=11)
     rhs_x, rhs_mu = rng.standard_normal((n, 2)), rng.standard_normal(2)
     step, step_mu, _ = _solve_step(blocks, terms, rhs_x, rhs_mu, damping=0.0, rtol=1e-8, max_iterations=2000)
     Q = prior.unit.toarray()
@@ -193,18 +203,11 @@ def test_the_step_holds_the_active_set_and_predicts_the_quadratic_models_decreas
     """With some values fixed (at a bound), _solve_step against the dense solve of the system
     with those rows and columns removed; its predicted decrease against ``r.d - d.H d / 2``
     of the undamped dense system, also with damping on."""
-    from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
-    from polarbssrdf.inverse.biophysical.fit import PriorTerms, _solve_step
+    from polarbssrdf.inverse.biophysical.fit import _solve_step
 
     texels = 16
-    prior = grid_prior(2, texels)
     n = texels * texels
-    config = BiophysicalConfig(prior_std={"C_m": 0.004, "C_h_out": 0.01},
-                               prior_mean={"C_m": [0.05, 0.0], "C_h_out": [0.07, 0.0]})
-    terms = PriorTerms(["C_m", "C_h_out"], prior, config, {"C_m": 0.05, "C_h_out": 0.07})
-    rng = np.random.default_rng(12)
-    J = rng.standard_normal((n, 6, 2)) * np.array([300.0, 100.0]) * rng.uniform(0.5, 2.0, (n, 1, 1))
-    blocks = np.einsum("nbi,nbj->nij", J, J)
+    prior, terms, blocks, rng = _two_map_system(texels, mean_std=(0.0, 0.0), seed=12)
     rhs_x = rng.standard_normal((n, 2))
     fixed = rng.uniform(size=(n, 2)) < 0.1
     H = _block_diagonal(blocks) + np.kron(prior.unit.toarray(), np.diag(1.0 / terms.tau2))
