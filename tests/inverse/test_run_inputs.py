@@ -480,3 +480,27 @@ def test_the_check_compares_with_the_machines_memory(monkeypatch, capsys):
     monkeypatch.setattr(resources, "machine_memory", lambda: (needed, needed // 2))
     assert resources.check_memory(512, 6, 4, stages) == needed
     assert "warning" in capsys.readouterr().err  # fits the machine, not what is free now
+
+
+def test_a_dask_worker_drops_only_the_heartbeat_failure_after_the_scheduler_left():
+    """After Ctrl-C the cluster closes under a worker's heartbeat: that one message is not
+    printed; the worker's other errors are."""
+    import logging
+    import signal
+
+    from polarbssrdf.inverse import frames
+
+    logger = logging.getLogger("distributed.worker")
+    before = list(logger.filters)
+    handler = signal.getsignal(signal.SIGINT)  # dask_setup ignores Ctrl-C, as in a worker
+    try:
+        frames.dask_setup(None)
+        heartbeat = logger.makeRecord("distributed.worker", logging.ERROR, __file__, 1,
+                                      "Failed to communicate with scheduler during heartbeat.", (), None)
+        other = logger.makeRecord("distributed.worker", logging.ERROR, __file__, 1,
+                                  "Compute Failed", (), None)
+        assert not logger.filter(heartbeat)
+        assert logger.filter(other)
+    finally:
+        logger.filters[:] = before
+        signal.signal(signal.SIGINT, handler)
