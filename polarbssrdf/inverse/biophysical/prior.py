@@ -158,6 +158,7 @@ class SpatialPrior:
 
 
 _ZONE = {}
+_SPECTRUM = {}
 
 
 def _zone_bins(bins, grid):
@@ -192,12 +193,16 @@ def lattice_spectrum(bins=SPECTRUM_BINS, grid=1024):
     ``lambda = 4 (sin^2(theta_u / 2) + sin^2(theta_v / 2))`` (the unit-spacing
     5-point Laplacian's symbol, in [0, 8]) over the Brillouin zone, binned in
     ``ln lambda``: ``sum weight f(lambda)`` is the zone average of a function
-    smooth in ``ln lambda``."""
+    smooth in ``ln lambda``. Cached per ``(bins, grid)``: every posterior and prior
+    energy evaluates over it."""
 
-    theta, _, count = _zone_bins(bins, grid)
-    half = np.sin(theta / 2.0) ** 2
-    values = 4.0 * (half[:, None] + half[None, :]).ravel()
-    return _bin_average(values, bins, grid), count[count > 0] / values.size
+    key = (int(bins), int(grid))
+    if key not in _SPECTRUM:
+        theta, _, count = _zone_bins(bins, grid)
+        half = np.sin(theta / 2.0) ** 2
+        values = 4.0 * (half[:, None] + half[None, :]).ravel()
+        _SPECTRUM[key] = (_bin_average(values, bins, grid), count[count > 0] / values.size)
+    return _SPECTRUM[key]
 
 
 def prior_variance_factor(correlation_mm, area_mm2, order=1):
@@ -218,8 +223,9 @@ def noise_spectrum(correlation, bins=SPECTRUM_BINS, grid=1024):
     residuals (:func:`~polarbssrdf.inverse.biophysical.fit.residual_correlation`).
     Made symmetric in the sign of each offset, ``S(theta) = sum rho(dy, dx) cos(dy
     theta_u) cos(dx theta_v)`` (the Wiener-Khinchin theorem on the lattice) is averaged
-    over the texel frequencies of each ``ln lambda`` bin of :func:`lattice_spectrum`
-    and clipped at 0; its zone average is 1, white noise gives 1 everywhere."""
+    over the texel frequencies of each ``ln lambda`` bin of :func:`lattice_spectrum`,
+    after clipping at 0 (a measured correlation need not be positive definite). Unclipped,
+    its zone average is 1 (the variance is kept); white noise gives 1 everywhere."""
 
     radius = max(max(abs(dy), abs(dx)) for dy, dx in correlation)
     rho = np.zeros((radius + 1, radius + 1))
