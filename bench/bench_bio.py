@@ -27,7 +27,11 @@ With ``--kernel-cache cold,warm`` each case runs first in a fresh ``HOME``
 ``HOME``: the warm run must compile nothing.
 
     .venv/bin/python bench/bench_bio.py [--cases target,cheek,accuracy] [--kernel-cache cold,warm]
-                                        [--out figures.json]
+                                        [--config JSON] [--reference JSON] [--out figures.json]
+
+``--reference '{"correlation_mm": 5}'`` runs every case again with those config
+fields right after and prints the time and MAE ratios, so that two settings are
+compared on the same machine under the same load.
 """
 
 from __future__ import annotations
@@ -98,8 +102,8 @@ class Profile:
                 for label in sorted(set(self.seconds) | set(self.calls))}
 
 
-def run_case(texture, noise, region="forehead"):
-    """In this (child) process: fit one frame and return its figures."""
+def run_case(texture, noise, region="forehead", overrides=None):
+    """In this (child) process: fit one frame (``BiophysicalConfig(**overrides)``) and return its figures."""
     import drjit as dr
     import numpy as np
 
@@ -124,7 +128,7 @@ def run_case(texture, noise, region="forehead"):
         albedo = albedo * (1.0 + noise * np.random.default_rng(7).standard_normal(albedo.shape))
     inputs = {f"rho_sss.{b.name}": albedo[i] for i, b in enumerate(bands)}
     inputs["eta"] = maps["eta"]
-    config = BiophysicalConfig()
+    config = BiophysicalConfig(**(overrides or {}))
     profile = Profile()
     profile.instrument()
     dr.set_flag(dr.JitFlag.KernelHistory, True)
@@ -157,17 +161,18 @@ def run_case(texture, noise, region="forehead"):
             "maps": {n: result.maps[n].tolist() for n in PARAMETERS} if MAPS_OUT else None,
             "rounds": [{k: v for k, v in h.items() if k != "losses"} | {"steps": len(h["losses"]) - 1}
                        for h in result.history],
+            "config": overrides or {}, "correlation_length": result.noise.get("correlation_length"),
             "errors": errors}
 
 
 MAPS_OUT = False  # set in the child by --maps: the fitted maps go into the figures (to compare runs)
 
 
-def child(texture, noise, region, home=None, maps=False):
+def child(texture, noise, region, home=None, maps=False, overrides=None):
     """Run :func:`run_case` in a fresh process (in ``home``, if given); its figures and peak RSS (MiB)."""
     code = (f"import json, resource, sys; sys.path.insert(0, {str(Path(__file__).parent)!r}); "
             f"import bench_bio; bench_bio.MAPS_OUT = {bool(maps)}; "
-            f"out = bench_bio.run_case({texture}, {noise}, {region!r}); "
+            f"out = bench_bio.run_case({texture}, {noise}, {region!r}, json.loads({json.dumps(overrides or {})!r})); "
             "out['peak_rss_mib'] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024); "
             "print('RESULT ' + json.dumps(out))")
     env = dict(os.environ, HOME=str(home)) if home else None
@@ -185,17 +190,35 @@ def main(argv=None):
                         "then again in it (default: this HOME, as it is)")
     parser.add_argument("--maps", action="store_true", help="keep the fitted maps in --out (to compare runs)")
     parser.add_argument("--out", type=Path, default=None, help="also write the figures as JSON")
+    parser.add_argument("--config", type=json.loads, default={}, help="BiophysicalConfig fields as JSON "
+                        "(e.g. '{\"correlation_mm\": 5}'); default the defaults")
+    parser.add_argument("--reference", type=json.loads, default=None, help="also run every case with these "
+                        "BiophysicalConfig fields (JSON, '{}' for the defaults) right after, and print the ratios")
     args = parser.parse_args(argv)
     caches = [c for c in args.kernel_cache.split(",") if c] or ["as is"]
     figures = []
     for name in args.cases.split(","):
         for texture, noise, region in CASES[name]:
             home = tempfile.mkdtemp(prefix="bench-bio-home-") if caches != ["as is"] else None
-            for cache in caches:
-                print(f"{name}: {texture}^2, {region} IV, noise {noise:.0%}, kernel cache {cache} ...", flush=True)
-                row = child(texture, noise, region, home, args.maps)
+            runs = [(cache, args.config) for cache in caches]
+            if args.reference is not None:
+                runs += [(cache, args.reference) for cache in caches]
+            first = {}
+            for cache, overrides in runs:
+                print(f"{name}: {texture}^2, {region} IV, noise {noise:.0%}, kernel cache {cache}, "
+                      f"config {json.dumps(overrides)} ...", flush=True)
+                row = child(texture, noise, region, home, args.maps, overrides)
                 row["case"], row["kernel_cache"] = name, cache
                 figures.append(row)
+                if cache in first:
+                    print(f"  against config {json.dumps(first[cache]['config'])}: time "
+                          f"{row['seconds'] / first[cache]['seconds']:.2f}x, MAE "
+                          + ", ".join(f"{p} {row['errors'][p]['fit_pct'] / max(first[cache]['errors'][p]['fit_pct'], 1e-9):.2f}x"
+                                      for p in PARAMETERS))
+                first.setdefault(cache, row)
+                if row.get("correlation_length"):
+                    print(f"  correlation length {row['correlation_length']['correlation_mm']} mm "
+                          f"({row['correlation_length']['from']})")
                 k = row["kernels"]
                 print(f"  {row['seconds']} s ({row['texels_per_second']:,} texels/s), peak RSS "
                       f"{row['peak_rss_mib']} MiB, rounds {[(r['steps'], round(r['seconds'], 1)) for r in row['rounds']]}")

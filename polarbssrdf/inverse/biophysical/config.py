@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 from polarbssrdf.inverse.biophysical.model import PARAMETERS
-from polarbssrdf.inverse.biophysical.prior import DEFAULT_CORRELATION_MM, population_prior, within_face_spread
+from polarbssrdf.inverse.biophysical.prior import population_prior, within_face_spread
 from polarbssrdf.io.jsonfile import (
     check_boolean,
     check_integer,
@@ -34,7 +34,7 @@ PRIORS = ("matern", "none")
 NOISE_MODELS = ("fit", "fixed")
 """How the albedo noise is set (:attr:`BiophysicalConfig.noise`)."""
 
-STD_NOISE_MODELS = ("correlated", "white")
+STD_NOISE_MODELS = ("correlated", "projected", "white")
 """How the reported std treats the noise between texels (:attr:`BiophysicalConfig.std_noise`)."""
 
 
@@ -88,8 +88,13 @@ class BiophysicalConfig:
     prior_mean : dict
         ``name -> [mean, std]`` of the face mean's hyperprior; default the mean
         and spread of Table 2's eight rows. A std of 0 holds the face mean there.
-    correlation_mm : float
-        Correlation length of the Matérn fields (mm).
+    correlation_mm : float or "fit"
+        Correlation length of the Matérn fields (mm). ``"fit"`` (default):
+        estimated from the input albedo's covariance between texels two and
+        more texels apart (:func:`~polarbssrdf.inverse.biophysical.correlation.albedo_correlation_length`;
+        the result's metadata ``correlation_length`` gives it). On synthetic faces
+        whose fields are Gaussian-filtered over 8 mm it finds 6.4-8.2 mm; on the
+        demo's capture 8.4 mm. A number fixes it (the fit before 2026-12-02 used 5).
     prior_order : {1, 2}
         The Matérn fields' ``alpha`` (:class:`~polarbssrdf.inverse.biophysical.prior.SpatialPrior`):
         2 (default) is smooth at the texel scale and pools the data of a few
@@ -124,12 +129,19 @@ class BiophysicalConfig:
         are re-estimated after every round from the residuals (moments over the
         degrees of freedom the posterior leaves), so the uncertainty is
         calibrated on the data; ``"fixed"`` keeps the starts.
-    std_noise : {"correlated", "white"}
-        ``"correlated"`` (default): the ``<map>_std`` channels account for the
-        noise's correlation between neighbouring texels, measured on the
-        whitened residuals (offsets up to 3 texels), by a sandwich covariance
-        (:func:`~polarbssrdf.inverse.biophysical.prior.posterior_covariance`);
-        ``"white"`` takes the noise as independent between texels.
+    std_noise : {"projected", "correlated", "white"}
+        ``"projected"`` (default): the ``<map>_std`` channels account for the
+        noise's correlation between neighbouring texels (offsets up to 3
+        texels) by a sandwich covariance
+        (:func:`~polarbssrdf.inverse.biophysical.prior.posterior_covariance`),
+        the correlation measured on the whitened residuals projected per texel
+        on the band directions no map can move
+        (:func:`~polarbssrdf.inverse.biophysical.fit.residual_correlation`): the
+        maps absorb the smooth part of the noise along their own directions, so
+        the plain residuals understate its correlation (on the demo 0.15 between
+        neighbours, where the albedo error's is 0.43). ``"correlated"``: the
+        plain residuals' correlation. ``"white"`` takes the noise as
+        independent between texels.
     smoothness : float or dict
         Weight of an extra smoothness penalty per map (one number for all, or
         ``name -> weight``): the mean over neighbouring texel pairs of the
@@ -163,14 +175,14 @@ class BiophysicalConfig:
     prior: str = "matern"
     prior_std: dict = dataclasses.field(default_factory=within_face_spread)
     prior_mean: dict = dataclasses.field(default_factory=lambda: {n: list(v) for n, v in population_prior().items()})
-    correlation_mm: float = DEFAULT_CORRELATION_MM
+    correlation_mm: float | str = "fit"
     prior_order: int = 2
     gain_std: float = 0.0
     face_means: str = "blocks"
     hold_uninformed: bool = True
     mean_block_mm: float = 16.0
     noise: str = "fit"
-    std_noise: str = "correlated"
+    std_noise: str = "projected"
     spread: str = "fit"
     smoothness: object = 0.0
     albedo_noise: float = 0.01
@@ -232,9 +244,12 @@ class BiophysicalConfig:
         check_number(self.mean_block_mm, "mean_block_mm")
         if not self.mean_block_mm > 0:
             raise ValueError(f"mean_block_mm must be > 0 (mm), got {self.mean_block_mm!r}")
-        check_number(self.correlation_mm, "correlation_mm")
-        if not self.correlation_mm > 0:
-            raise ValueError(f"correlation_mm must be > 0 (mm), got {self.correlation_mm!r}")
+        if self.correlation_mm != "fit":
+            if isinstance(self.correlation_mm, str):
+                raise ValueError(f"correlation_mm must be \"fit\" or a length in mm, got {self.correlation_mm!r}")
+            check_number(self.correlation_mm, "correlation_mm")
+            if not self.correlation_mm > 0:
+                raise ValueError(f"correlation_mm must be > 0 (mm) or \"fit\", got {self.correlation_mm!r}")
         check_integer(self.prior_order, "prior_order", minimum=1)
         if self.prior_order > 2:
             raise ValueError(f"prior_order must be 1 or 2, got {self.prior_order!r}")

@@ -16,11 +16,15 @@ c. at full resolution, damped Gauss-Newton steps (or Adam, ``drjit.opt``; the
    means to the posterior mode of the eq. 46 rendering
    (:class:`~polarbssrdf.inverse.biophysical.model.BiophysicalModel`: the
    texture-space layered blur of synth, differentiable) against the input
-   (eq. 41) under the Matérn prior of :mod:`~polarbssrdf.inverse.biophysical.prior`;
-   clamped to the bounds after every step;
-d. the bands' noise and the maps' spreads re-estimated from the posterior, and
-   (b)-(d) repeated until the kernels change by less than ``kernel_tolerance``
-   and neither estimate moves by more than :data:`NOISE_TOLERANCE`;
+   (eq. 41) under the Matérn prior of :mod:`~polarbssrdf.inverse.biophysical.prior`
+   (its correlation length estimated from the albedo,
+   :mod:`~polarbssrdf.inverse.biophysical.correlation`); clamped to the bounds
+   after every step;
+d. the bands' noise and the maps' spreads re-estimated from the posterior (a
+   map the re-estimated noise leaves prior-dominated is held at its face mean
+   from then on, :func:`hold_prior_dominated`), and (b)-(d) repeated until the
+   kernels change by less than ``kernel_tolerance`` and neither estimate moves
+   by more than :data:`NOISE_TOLERANCE`;
 e. the posterior standard deviation of every map per texel
    (:func:`posterior_blocks`).
 
@@ -34,6 +38,7 @@ neighbours) and are flagged.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 
@@ -45,6 +50,7 @@ from scipy.sparse.linalg import LinearOperator, cg
 
 from polarbssrdf._arrays import to_jit
 from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
+from polarbssrdf.inverse.biophysical.correlation import albedo_correlation_length
 from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel, jit_types
 from polarbssrdf.inverse.biophysical.prior import (
     FourierPreconditioner,
@@ -488,6 +494,16 @@ class PriorTerms:
         mean_gradient[~free] = 0.0
         return value, gradient, mean_gradient
 
+    def restricted(self, names):
+        """The same terms over a subset of the maps (their spreads, means and precisions kept)."""
+        keep = [self.names.index(n) for n in names]
+        out = copy.copy(self)
+        out.names = list(names)
+        for attribute in ("tau2", "mean0", "mean_variance", "mu", "std", "known_variance", "free", "active",
+                          "level_precision"):
+            setattr(out, attribute, getattr(self, attribute)[keep].copy())
+        return out
+
     def update_spreads(self, maps, C, movable):
         """Re-estimate the chromophores' spreads (not the gain's) from the posterior
         (:func:`~polarbssrdf.inverse.biophysical.prior.updated_spread`); returns the
@@ -733,7 +749,7 @@ CORRELATION_RADIUS = 3
 correlation; beyond them it is taken as 0."""
 
 
-def residual_correlation(loss_fn, predicted, valid, radius=CORRELATION_RADIUS):
+def residual_correlation(loss_fn, predicted, valid, radius=CORRELATION_RADIUS, jacobian=None, movable=None):
     """``(dy, dx) -> rho``: the correlation of the whitened relative residuals ``r_b / sigma_b``
     between texels ``(dy, dx)`` apart (both with valid input), pooled over bands.
 
@@ -741,13 +757,26 @@ def residual_correlation(loss_fn, predicted, valid, radius=CORRELATION_RADIUS):
     error correlates 0.43 (per band) and 0.28 (band-common) between neighbours, from the
     resampling of images into texture space, and a std that takes it as white covered
     only 67-81% of the chromophore errors within 2 std there. Residuals miss the part of
-    the noise the maps absorb, so this is a lower bound on the correlation."""
+    the noise the maps absorb. With ``jacobian`` (``J_z`` of the ``movable`` texels,
+    :func:`data_precision`) each texel's residual is first projected on the band
+    directions no map can move, ``(I - J (J^T J)^-1 J^T) z``: there the prior's smoothing
+    neither absorbs the correlated part nor leaves the white part behind, so for noise
+    whose correlation between texels is the same in every band direction the
+    projection's correlation is the noise's (``tr(P Sigma_ij P) / tr(P Sigma_ii P)``)."""
 
     B = len(predicted)
     T = valid.shape[0]
     observed = loss_fn.observed_numpy.reshape(B, T, T)
     relative = (np.stack([np.asarray(p).reshape(T, T) for p in predicted]) - observed) / np.maximum(observed, 1e-3)
     z = relative / loss_fn.sigma[:, None, None]
+    if jacobian is not None:
+        flat = z.reshape(B, -1)[:, movable].T  # (n, B)
+        normal = np.einsum("nbi,nbj->nij", jacobian, jacobian) + 1e-12 * np.eye(jacobian.shape[-1])
+        coefficients = np.linalg.solve(normal, np.einsum("nbi,nb->ni", jacobian, flat)[..., None])[..., 0]
+        flat = flat - np.einsum("nbi,ni->nb", jacobian, coefficients)
+        z = z.reshape(B, -1).copy()
+        z[:, movable] = flat.T
+        z = z.reshape(B, T, T)
     z = np.where(valid[None], z - np.array([z[b][valid].mean() for b in range(B)])[:, None, None], 0.0)
     variance = float(np.mean(z[:, valid] ** 2))
     out = {}
@@ -849,6 +878,23 @@ def prior_dominated_maps(loss_fn, maps, names, texels, spatial, config):
     return [n for n, r in remaining.items() if r > PRIOR_DOMINATED], remaining
 
 
+def hold_prior_dominated(loss_fn, maps, names, good, spatial, config, block_means, held, held_std):
+    """Hold the maps :func:`prior_dominated_maps` finds at their face means (in place).
+
+    A held map takes its block-averaged face mean (:func:`block_face_means`, else its
+    median over ``good``) everywhere, and as its std the prior spread combined with
+    that mean's std; ``maps``, ``held`` and ``held_std`` are updated. Returns the maps
+    held now and, per chromophore in ``names``, the fraction of its prior variance left."""
+
+    dominated, remaining = prior_dominated_maps(loss_fn, maps, names, good.ravel(), spatial, config)
+    starts = _start_means(maps, good)
+    for name in dominated:
+        mean, mean_std = block_means.get(name, (starts[name], 0.0))
+        held[name] = maps[name] = np.full(good.shape, mean)
+        held_std[name] = np.full(good.shape, np.hypot(config.prior_std[name], mean_std), np.float32)
+    return dominated, remaining
+
+
 def _start_means(maps, good):
     """The face means' start: each map's median over the texels with valid input."""
     return {n: float(np.median(maps[n][good])) for n in PARAMETERS}
@@ -939,7 +985,10 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     model = BiophysicalModel(bands, atlas, eta, config.thickness_mm, config.bounds)
     # flagged texels have no data term: the prior interpolates them
     loss_fn = FitLoss(model, observed, good.astype(np.float64), config)
-    spatial = (SpatialPrior(surface, atlas.texel_size_mm, config.correlation_mm, config.prior_order)
+    length = {"correlation_mm": config.correlation_mm, "from": "config"}
+    if config.prior == "matern" and config.correlation_mm == "fit":
+        length = {**albedo_correlation_length(rbar, good, atlas.texel_size_mm, config.prior_order)[1], "from": "albedo"}
+    spatial = (SpatialPrior(surface, atlas.texel_size_mm, length["correlation_mm"], config.prior_order)
                if config.prior == "matern" else None)
     block_means = {}
     if spatial is not None and config.face_means == "blocks":
@@ -949,19 +998,18 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     held_std = dict(held_std or {})
     dominated, remaining = [], {}
     if spatial is not None and config.hold_uninformed:
-        dominated, remaining = prior_dominated_maps(loss_fn, maps, names, good.ravel(), spatial, config)
-        starts = _start_means(maps, good)
-        for name in dominated:
-            mean, mean_std = block_means.get(name, (starts[name], 0.0))
-            held[name] = maps[name] = np.full(shape, mean)
-            held_std[name] = np.full(shape, np.hypot(config.prior_std[name], mean_std), np.float32)
+        dominated, remaining = hold_prior_dominated(loss_fn, maps, names, good, spatial, config, block_means,
+                                                    held, held_std)
         names = [n for n in names if n not in dominated]
     prior = PriorTerms(names, spatial, config, _start_means(maps, good),
                        {n: v for n, v in block_means.items() if n in names})
     texel = median_intensity_texel(observed, good)
     kernels = fit_kernels(maps, texel, bands, eta, config)
     history = []
-    for round_index in range(config.rounds):
+    rounds = config.rounds
+    round_index = -1
+    while round_index + 1 < rounds:
+        round_index += 1
         t_round = time.perf_counter()
         model.kernels = kernels
 
@@ -991,6 +1039,19 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
             noise_change = max(noise_change, abs(common - loss_fn.common) / float(np.mean(sigma)))
             entry.update(noise=[float(v) for v in sigma], common_noise=common, residuals=figures)
             loss_fn.set_noise(sigma, common)
+            if spatial is not None and config.hold_uninformed:
+                # the start's noise (albedo_noise) can overstate what the bands tell: decide
+                # again with the noise the residuals show, and fit the others once more
+                newly, left = hold_prior_dominated(loss_fn, maps, names, good, spatial, config, block_means,
+                                                   held, held_std)
+                remaining.update(left)
+                if newly:
+                    names = [n for n in names if n not in newly]
+                    prior = prior.restricted(names)
+                    dominated += newly
+                    entry["held_at_face_mean"] = newly
+                    rounds = max(rounds, round_index + 2)
+                    noise_change = np.inf
         if config.spread == "fit" and config.method == "gauss_newton" and spatial is not None:
             C, _ = data_precision(loss_fn, maps, names, movable)
             noise_change = max(noise_change, prior.update_spreads(maps, C, movable))
@@ -1005,10 +1066,12 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
             break
     model.kernels = kernels
     spectrum, correlation = None, {}
-    if spatial is not None and config.std_noise == "correlated":
+    if spatial is not None and config.std_noise in ("correlated", "projected"):
         # the std from the noise's own correlation between texels (a sandwich covariance)
         rendered = loss_fn.data_terms({n: to_jit(jit_types()[0], np.ravel(maps[n]), np.float32) for n in maps})
-        correlation = residual_correlation(loss_fn, [np.array(p, dtype=np.float64) for p in rendered], good)
+        _, J = data_precision(loss_fn, maps, names, movable) if config.std_noise == "projected" else (None, None)
+        correlation = residual_correlation(loss_fn, [np.array(p, dtype=np.float64) for p in rendered], good,
+                                           jacobian=J, movable=movable)
         spectrum = noise_spectrum(correlation)
     covariance, _, _, mean_covariance = posterior_blocks(loss_fn, prior, maps, movable, spectrum)
     std = {}
@@ -1037,6 +1100,7 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
              "prior_variance_left": remaining,
              "common_relative_sigma": loss_fn.common,
              "model": config.noise, "face_means": means, "std_noise": config.std_noise,
+             "correlation_length": length,
              "residual_correlation": {f"{dy},{dx}": round(v, 4) for (dy, dx), v in sorted(correlation.items())
                                       if dy > 0 or (dy == 0 and dx > 0)},
              "spread": {n: float(v) for n, v in zip(names, prior.std)}}

@@ -304,3 +304,34 @@ def test_residual_correlation_measures_the_noise_between_neighbours():
     assert correlation[(0, -1)] == correlation[(0, 1)]
     for offset in ((1, 0), (1, 1), (0, 2), (2, -1), (3, 3)):
         assert abs(correlation[offset]) < 0.03, offset
+
+
+def test_projected_residual_correlation_ignores_what_the_maps_absorb():
+    """Residuals = white noise correlated 0.5 between horizontal neighbours, plus a strongly
+    smooth part along two per-texel model directions (what a fit's maps leave behind after
+    absorbing most of a smooth error): pooled over bands the correlation is pulled up by the
+    smooth part; projected on the directions no map can move it is the noise's 0.5 again."""
+    import types
+
+    from polarbssrdf.inverse.biophysical.fit import residual_correlation
+
+    rng = np.random.default_rng(8)
+    T, B, k = 96, 6, 2
+    sigma = np.full(B, 0.01)
+    white = rng.standard_normal((B, T, T + 1))
+    noise = (white[:, :, 1:] + white[:, :, :-1]) / np.sqrt(2.0)  # whitened units
+    # J_z per texel (whitened units): the model's directions vary slowly over a face
+    directions = rng.standard_normal((1, B, k)) + 0.1 * rng.standard_normal((T * T, B, k))
+    smooth = np.cumsum(rng.standard_normal((k, T, T)), axis=2) / 4.0  # strongly correlated along rows
+    absorbed = np.einsum("nbi,in->bn", directions, smooth.reshape(k, -1)).reshape(B, T, T)
+    observed = np.full((B, T, T), 0.4)
+    predicted = observed * (1.0 + sigma[:, None, None] * (noise + absorbed))
+    valid = np.ones((T, T), bool)
+    loss_fn = types.SimpleNamespace(observed_numpy=observed.reshape(B, -1), sigma=sigma)
+    pooled = residual_correlation(loss_fn, [p.ravel() for p in predicted], valid)
+    projected = residual_correlation(loss_fn, [p.ravel() for p in predicted], valid,
+                                     jacobian=directions, movable=np.ones(T * T, bool))
+    assert pooled[(0, 1)] > 0.7
+    assert projected[(0, 1)] == pytest.approx(0.5, abs=0.03)
+    for offset in ((1, 0), (0, 2), (2, 2)):
+        assert abs(projected[offset]) < 0.03, offset
