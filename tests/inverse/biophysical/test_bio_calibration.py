@@ -33,11 +33,10 @@ COVERAGE = {"C_m": (0.90, 0.995), "beta_m": (0.85, 0.995), "C_h_out": (0.90, 0.9
 ROWS = [(region, skin) for skin in ("II", "III", "IV") for region in ("forehead", "cheek")]
 
 
-@pytest.mark.parametrize("row", ROWS)
-def test_off_table_faces_beat_the_constant_map_with_calibrated_std(row):
+def off_table_face(row, noise):
+    """``(atlas, truth, bands, inputs)``: a 128^2 face one across-rows spread above ``row``'s
+    means, its truth albedo with ``noise`` relative white noise, and the truth's eta."""
     from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
-    from polarbssrdf.inverse.biophysical.fit import fit_biophysical
-    from polarbssrdf.inverse.evaluation.scores import biophysical_scores
     from polarbssrdf.synth.synthesize import subsurface_albedo
     from polarbssrdf.synth.truth import table2_offset_settings, truth_maps
 
@@ -46,9 +45,18 @@ def test_off_table_faces_beat_the_constant_map_with_calibrated_std(row):
     truth = truth_maps(atlas, table2_offset_settings(row, 1.0, spread="rows"), np.random.default_rng(1))
     bands = default_bands()
     albedo = subsurface_albedo(truth, bands)
-    noisy = albedo * (1.0 + 0.01 * np.random.default_rng(7).standard_normal(albedo.shape))
+    noisy = albedo * (1.0 + noise * np.random.default_rng(7).standard_normal(albedo.shape))
     inputs = {f"rho_sss.{b.name}": noisy[i] for i, b in enumerate(bands)}
     inputs["eta"] = truth["eta"]
+    return atlas, truth, bands, inputs
+
+
+@pytest.mark.parametrize("row", ROWS)
+def test_off_table_faces_beat_the_constant_map_with_calibrated_std(row):
+    from polarbssrdf.inverse.biophysical.fit import fit_biophysical
+    from polarbssrdf.inverse.evaluation.scores import biophysical_scores
+
+    atlas, truth, bands, inputs = off_table_face(row, 0.01)
     result = fit_biophysical(inputs, bands, atlas)
     scores, _ = biophysical_scores(result.channels(), truth, atlas.valid)
     for name in PARAMETERS:
@@ -68,22 +76,12 @@ def test_off_table_faces_beat_the_constant_map_with_calibrated_std(row):
 def test_a_map_the_calibrated_noise_cannot_tell_is_held_after_the_first_round():
     """2% noise where the start assumes 0.3%: at the start's noise the bands seem to tell
     beta_m (it is fitted), at the noise the residuals show they do not (held at its face
-    mean from then on, the others fitted again), as a fit started at the right noise holds it."""
-    from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
+    mean from then on, the others fitted again)."""
     from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
     from polarbssrdf.inverse.biophysical.fit import fit_biophysical
     from polarbssrdf.inverse.evaluation.scores import biophysical_scores
-    from polarbssrdf.synth.synthesize import subsurface_albedo
-    from polarbssrdf.synth.truth import table2_offset_settings, truth_maps
 
-    mi.set_variant("llvm_ad_mono_polarized")
-    atlas = texel_atlas(to_mitsuba(face_mesh(1)), 128)
-    truth = truth_maps(atlas, table2_offset_settings(("forehead", "IV"), 1.0, spread="rows"), np.random.default_rng(1))
-    bands = default_bands()
-    albedo = subsurface_albedo(truth, bands)
-    noisy = albedo * (1.0 + 0.02 * np.random.default_rng(7).standard_normal(albedo.shape))
-    inputs = {f"rho_sss.{b.name}": noisy[i] for i, b in enumerate(bands)}
-    inputs["eta"] = truth["eta"]
+    atlas, truth, bands, inputs = off_table_face(("forehead", "IV"), 0.02)
     result = fit_biophysical(inputs, bands, atlas, BiophysicalConfig(albedo_noise=0.003))
     assert result.history[0].get("held_at_face_mean") == ["beta_m"]
     assert result.noise["held_at_face_mean"] == ["beta_m"]
