@@ -93,8 +93,9 @@ class BiophysicalConfig:
         estimated from the input albedo's covariance between texels two and
         more texels apart (:func:`~polarbssrdf.inverse.biophysical.correlation.albedo_correlation_length`;
         the result's metadata ``correlation_length`` gives it). On synthetic faces
-        whose fields are Gaussian-filtered over 8 mm it finds 6.4-8.2 mm; on the
-        demo's capture 8.4 mm. A number fixes it (the fit before 2026-12-02 used 5).
+        whose fields are Gaussian-filtered over 8 mm it finds 6.4-6.7 mm at 128^2,
+        7.8-8.2 mm at 256^2 and 11.3 mm at 512^2 (the Gaussian's shape is not a
+        Matérn's); on the demo's capture 8.4 mm. A number fixes it (the fit before 2026-12-02 used 5).
     prior_order : {1, 2}
         The Matérn fields' ``alpha`` (:class:`~polarbssrdf.inverse.biophysical.prior.SpatialPrior`):
         2 (default) is smooth at the texel scale and pools the data of a few

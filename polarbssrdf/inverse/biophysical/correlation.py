@@ -22,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize, special
 
+from polarbssrdf.inverse.biophysical.prior import DEFAULT_CORRELATION_MM
+
 MINIMUM_LAG = 2
 """Shortest lag (texels) in the fit: the resampling of images into texture space correlates
 the demo's albedo error 0.43 between neighbours and 0.04 two texels apart (bench/RESULTS.md)."""
@@ -131,13 +133,21 @@ def albedo_correlation_length(rbar, valid, texel_size_mm, order=2):
     its mean over ``valid`` per band, is the field whose covariance
     :func:`fitted_correlation_length` fits. ``figures`` (for the result's
     metadata): ``l``, the fitted scale ``s^2``, whether ``l`` sits at a bound of
-    :data:`LENGTH_BOUNDS_MM`, the number of lags and the longest lag (mm)."""
+    :data:`LENGTH_BOUNDS_MM`, the number of lags and the longest lag (mm). With fewer
+    than 3 lags of :data:`MINIMUM_PAIRS` pairs (a map of a few texels, or charts a
+    few texels wide) ``l`` is the prior's default
+    (:data:`~polarbssrdf.inverse.biophysical.prior.DEFAULT_CORRELATION_MM`) and
+    ``figures["note"]`` says so."""
 
     valid = np.asarray(valid, bool)
     logs = np.log(np.clip(np.asarray(rbar, np.float64), 1e-6, None))
     means = np.array([band[valid].mean() for band in logs])
     fields = np.where(valid[None], logs - means[:, None, None], 0.0)
     distance, covariance, pairs = lattice_covariance(fields, valid, texel_size_mm)
+    if distance.size < 3:  # a map too small or too fragmented to tell: the prior's usual length
+        return DEFAULT_CORRELATION_MM, {"correlation_mm": DEFAULT_CORRELATION_MM, "scale": None, "at_bound": False,
+                                        "lags": int(distance.size), "longest_mm": None,
+                                        "note": "too few lags to fit: the default length"}
     length, s2 = fitted_correlation_length(distance, covariance, pairs, order)
     at_bound = bool(np.isclose(length, LENGTH_BOUNDS_MM[0], rtol=0.02) or np.isclose(length, LENGTH_BOUNDS_MM[1], rtol=0.02))
     return length, {"correlation_mm": round(length, 3), "scale": s2, "at_bound": at_bound,

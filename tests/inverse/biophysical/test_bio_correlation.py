@@ -90,6 +90,18 @@ def test_no_pair_spans_a_gap_between_charts():
     assert distance.min() == pytest.approx(2.0)
 
 
+def test_a_map_too_small_to_tell_gets_the_default_length():
+    from polarbssrdf.inverse.biophysical.prior import DEFAULT_CORRELATION_MM
+
+    valid = np.zeros((16, 16), bool)
+    valid[4:10, 4:10] = True  # 36 texels: no lag has 100 pairs
+    rbar = np.full((3, 16, 16), 0.3)
+    length, figures = albedo_correlation_length(rbar, valid, np.full((16, 16, 2), 1.0))
+    assert length == DEFAULT_CORRELATION_MM and figures["lags"] == 0 and "default" in figures["note"]
+    with pytest.raises(ValueError, match="too few"):
+        fitted_correlation_length([1.0, 2.0], [1.0, 0.5], [100, 100])
+
+
 def test_the_config_takes_fit_or_a_length():
     assert BiophysicalConfig(correlation_mm="fit").correlation_mm == "fit"
     assert BiophysicalConfig(correlation_mm=6.0).correlation_mm == 6.0
