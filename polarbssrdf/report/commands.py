@@ -49,9 +49,13 @@ def run_report(args) -> int:
     from polarbssrdf.report.page import read_json_or_default, write_report
 
     outdir = args.outdir
-    result_dir, evaluation, title = outdir, None, None
+    result_dir, evaluation, title, protected = outdir, None, None, ()
     if not (outdir / "result.json").is_file() and (outdir / "result" / "result.json").is_file():
+        from polarbssrdf.demo import DEMO_ENTRIES  # deferred: the demo imports this module
+
         result_dir = outdir / "result"  # a demo directory
+        # the demo's own files, but not its report.html (this command's output)
+        protected = [outdir / name for name in DEMO_ENTRIES if name != REPORT_FILE]
         title = "polarbssrdf demo: a synthetic face"
         metrics = read_json_or_default(outdir / "metrics.json")
         if isinstance(metrics, dict) and "evaluation" in metrics:
@@ -59,7 +63,8 @@ def run_report(args) -> int:
     out = args.out if args.out is not None else outdir / REPORT_FILE
     if (result_dir / "result.json").is_file():
         capture_dir = args.capture if args.capture is not None else read_result(result_dir).capture
-        check_report_path(out, result_dir, capture_dir)
+        check_report_path(out, result_dir, capture_dir, allowed=(REPORT_FILE,),
+                          protected=protected)
         capture = load_capture(capture_dir, check_images=False)
         what = (f"--capture '{capture_dir}'" if args.capture is not None
                 else f"the capture '{capture_dir}' recorded in result.json")

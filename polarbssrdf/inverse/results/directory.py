@@ -300,21 +300,56 @@ def record_stage_seconds(outdir, seconds: dict) -> None:
     atomic_write_text(path, json.dumps(timings, indent=1) + "\n", overwrite=True)
 
 
-def check_report_path(out: Path, outdir: Path, capture_dir: Path | None) -> None:
-    """``--out`` must not replace an input: the result's own files or anything in the capture."""
+RESULT_OWNED_FILES = (RESULT_FILE, METRICS_FILE, TIMINGS_FILE, REPORT_FILE)
+"""Files at the top of a result directory that belong to the run (``--out`` may not replace
+them; the report may rewrite its own :data:`REPORT_FILE`)."""
+RESULT_OWNED_DIRECTORIES = (*STAGES, OBSERVATIONS_DIR)
+"""Directories of a result that hold only the run's files (maps, checkpoints, previews,
+summaries, the observation cache): ``--out`` may not write anything inside them."""
+
+
+def result_owned_reason(target: Path, outdir: Path, *, allowed=()) -> str | None:
+    """Why the resolved path ``target`` belongs to the result in ``outdir`` (None: it does not).
+
+    ``allowed`` names top-level files the caller may rewrite (the report its own page).
+    """
+    outdir = Path(outdir).resolve()
+    owned_files = {outdir / name for name in RESULT_OWNED_FILES if name not in allowed}
+    try:  # maps registered at any path, older results included
+        owned_files |= {(outdir / record["path"]).resolve()
+                        for record in read_result(outdir).maps}
+    except (FileNotFoundError, ValueError):
+        pass
+    if target in owned_files:
+        name = target.relative_to(outdir) if outdir in target.parents else target.name
+        return f"it is the result's {name}"
+    for name in RESULT_OWNED_DIRECTORIES:
+        if outdir / name == target or outdir / name in target.parents:
+            return (f"it is inside the result's {name}/ directory (its maps, checkpoints, "
+                    "previews and caches)")
+    return None
+
+
+def check_report_path(out: Path, outdir: Path, capture_dir: Path | None, *, allowed=(),
+                      protected=()) -> None:
+    """``--out`` must not replace an input: a file the result owns, anything in the capture.
+
+    A result owns ``result.json``, ``metrics.json``, ``timings.json``, ``report.html``
+    (unless named in ``allowed``) and everything under its stage directories and
+    observation cache (maps, checkpoints, previews, summaries); ``protected`` adds files
+    (e.g. a demo directory's own). Raises :class:`CommandError`, one line.
+    """
     out, outdir = Path(out), Path(outdir)
     target = out.resolve()
     if out.exists() and out.is_dir():
         raise CommandError(f"--out '{out}' is a directory; give a file name, e.g. "
                            f"{out / 'evaluation.json'}")
-    protected = {(outdir / RESULT_FILE).resolve()}
-    try:
-        protected |= {(outdir / record["path"]).resolve() for record in read_result(outdir).maps}
-    except (FileNotFoundError, ValueError):
-        pass
-    if target in protected:
-        raise CommandError(f"--out '{out}' would overwrite a file of the result; choose another "
-                           "name")
+    reason = result_owned_reason(target, outdir, allowed=allowed)
+    if reason is None and target in {Path(p).resolve() for p in protected}:
+        reason = f"it is {Path(out).name} of the directory being reported"
+    if reason is not None:
+        raise CommandError(f"--out '{out}' would overwrite a file of the result in '{outdir}' "
+                           f"({reason}); choose another file name")
     if capture_dir is not None:
         capture_dir = Path(capture_dir).resolve()
         if target == capture_dir or capture_dir in target.parents:

@@ -1,0 +1,82 @@
+"""Issue 32: what ``reconstruct`` writes is safe from ``--out``, from truncated checkpoints,
+from SIGTERM, and from the Python API's string arguments.
+
+One tiny synthetic sphere (4 views, 48 x 48 px, T = 16) and one 2-epoch static run per
+module; the refusals are checked before any work, so the module takes seconds past its
+fixtures.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import pytest
+
+import mitsuba as mi
+
+from helpers import run_cli
+from polarbssrdf.errors import EXIT_USER_ERROR
+
+T = 16
+SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=2)
+CONFIG = {"patch_size": 16, "min_steps_per_epoch": 1}
+
+
+@pytest.fixture(scope="module")
+def capture_dir(tmp_path_factory):
+    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    directory = tmp_path_factory.mktemp("protected") / "capture"
+    synthesize(directory, SynthesisSettings(**SETTINGS), progress=False)
+    return directory
+
+
+@pytest.fixture(scope="module")
+def config_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("config") / "small.json"
+    path.write_text(json.dumps(CONFIG))
+    return path
+
+
+def static_args(capture_dir, outdir, config_file, *extra):
+    return ("reconstruct", capture_dir, outdir, "--stages", "static", "--iterations", "2",
+            "--config", config_file, "--quiet", *extra)
+
+
+@pytest.fixture(scope="module")
+def result_dir(capture_dir, config_file, tmp_path_factory):
+    outdir = tmp_path_factory.mktemp("protected_run") / "R"
+    status, _, stderr = run_cli(*static_args(capture_dir, outdir, config_file))
+    assert status == 0, stderr
+    return outdir
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+# --------------------------------------------------------------------------- item 1
+@pytest.mark.parametrize("command, name", [
+    ("evaluate", "metrics.json"), ("report", "metrics.json"),
+    ("evaluate", "static/checkpoint.npz"), ("evaluate", "timings.json"),
+    ("report", "static/previews/eta_f0000.png"), ("evaluate", "report.html"),
+])
+def test_out_never_replaces_a_file_of_the_result(result_dir, command, name):
+    target = result_dir / name
+    if name == "report.html":
+        target.write_text("<html>an earlier report</html>")
+    before = digest(target)
+    status, _, stderr = run_cli(command, result_dir, "--out", target)
+    assert status == EXIT_USER_ERROR, stderr
+    assert stderr.count("\n") == 1 and "would overwrite a file of the result" in stderr
+    assert str(target) in stderr
+    assert digest(target) == before
+
+
+def test_out_may_not_write_inside_a_stage_directory(result_dir):
+    target = result_dir / "static" / "evaluation.json"
+    status, _, stderr = run_cli("evaluate", result_dir, "--out", target)
+    assert status == EXIT_USER_ERROR and "inside the result's static/ directory" in stderr
+    assert not target.exists()
