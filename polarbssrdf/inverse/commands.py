@@ -90,8 +90,10 @@ def register(subparsers) -> None:
     parser.add_argument("--holdout", default="", metavar="CAM[,CAM...]",
                         help="cameras left out of the fit, for validation re-renders with "
                              "'polarbssrdf evaluate' (default: none)")
-    parser.add_argument("--frame", type=integer_at_least(0), default=0, metavar="F",
-                        help="frame index of the capture to fit (default: %(default)s)")
+    parser.add_argument("--frame", type=integer_at_least(0), default=None, metavar="F",
+                        help="the static frame: the static stage fits it, the dynamic stage "
+                             "starts from its maps and fits every other frame (default: 0; "
+                             "without 'static' in --stages, the earlier run's static frame)")
     existing = parser.add_mutually_exclusive_group()
     existing.add_argument("--resume", action="store_true",
                           help="continue the run in OUTDIR from its last checkpoint; needs the "

@@ -37,7 +37,7 @@ from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
 from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
 from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
 from polarbssrdf.inverse.frames import check_scheduler
-from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage
+from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage, static_frame_of
 from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
 from polarbssrdf.inverse.resources import check_memory
 from polarbssrdf.inverse.polarimetric.static import run_static_stage
@@ -96,7 +96,7 @@ class Reconstruction(ResultDirectory):
         (``polarbssrdf.inverse.commands.closing_line``: the next command that applies)."""
         held = f"; held out {', '.join(self.holdout)}" if self.holdout else ""
         lines = [f"polarbssrdf reconstruct: {self.capture} -> {self.path} ({self.texture} x "
-                 f"{self.texture} texels, frame {self.frame}{held}) in {self.seconds:.1f} s"]
+                 f"{self.texture} texels, static frame {self.frame}{held}) in {self.seconds:.1f} s"]
         lines += self.stage_lines
         lines.append(closing if closing is not None else
                      f"  result.json, metrics.json and previews in {self.path}; score it with "
@@ -164,6 +164,27 @@ def check_frame_and_holdout(capture, frame: int, holdout: list[str]) -> None:
     if seen <= set(holdout):
         raise CommandError(f"--holdout leaves out every camera of frame {frame} "
                            f"({', '.join(sorted(seen))}): nothing left to fit")
+
+
+def static_frame(outdir: Path, frame: int | None, continuing: bool) -> int:
+    """The run's static frame: ``frame`` (default 0) when this run fits the static stage; the
+    one the earlier run fitted when later stages add to it (``frame`` None or that frame).
+
+    The dynamic stage starts from the static frame's maps and fits every other frame; a
+    continuing run with another ``frame`` is refused here, before any work.
+    """
+    if not continuing or not (Path(outdir) / RESULT_FILE).is_file():
+        return 0 if frame is None else int(frame)
+    try:
+        fitted = static_frame_of(outdir)
+    except FileNotFoundError:  # no static maps: the stage's own error says so, later
+        return 0 if frame is None else int(frame)
+    if frame is not None and int(frame) != fitted:
+        raise CommandError(f"the run in '{outdir}' fitted static frame {fitted}, and the later "
+                           f"stages start from its maps: --frame {frame} would need another "
+                           f"static fit; drop --frame (or pass --frame {fitted}), or run "
+                           f"'--stages static,...' with --frame {frame} into a new directory")
+    return fitted
 
 
 def run_settings(stages, config, holdout, frame) -> dict:
@@ -248,7 +269,7 @@ def say_confidence(stage, summaries, progress=True) -> None:
 
 
 def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, texture=None,
-                frame=0, iterations=None, workers=None, scheduler=None, resume=False,
+                frame=None, iterations=None, workers=None, scheduler=None, resume=False,
                 overwrite=False, progress=True, variant=DEFAULT_VARIANT) -> Reconstruction:
     """Run the acquisition stages on ``capture`` into the result directory ``outdir``.
 
@@ -270,8 +291,10 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     texture : int, optional
         Maps are T x T texels; default the capture's truth size, else
         :data:`DEFAULT_TEXTURE`.
-    frame : int
-        The capture frame the static stage fits; the dynamic stage fits the others.
+    frame : int, optional
+        The static frame: the static stage fits it (default 0); the dynamic stage starts
+        from its maps and fits every other frame. Stages without ``"static"`` use the
+        earlier run's static frame (another ``frame`` is refused).
     iterations : int, optional
         Epochs of the static stage and of each dynamic frame (as ``--iterations``).
     workers, scheduler : optional
@@ -296,6 +319,9 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     check_variant(variant, mi.variants())
     holdout = list(dict.fromkeys(holdout))
     config = run_config(config, iterations)
+    # later stages on an earlier run read its maps and add their own (no resume needed)
+    continuing = stages[0] != STAGES[0]
+    frame = static_frame(Path(outdir), frame, continuing)
     capture = load_input_capture(capture, frame)
     check_frame_and_holdout(capture, frame, holdout)
     if texture is None:
@@ -314,8 +340,6 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                            "static maps those stages read; include 'static' in --stages to "
                            "start over, or drop --overwrite to add to the run in "
                            f"'{outdir}'")
-    # later stages on an earlier run read its maps and add their own (no resume needed)
-    continuing = stages[0] != STAGES[0]
     if resume and not continuing and outdir.is_dir() and any(outdir.iterdir()):
         differences = resume_differences(outdir, capture, texture, settings)
         if differences:

@@ -38,6 +38,7 @@ from polarbssrdf.inverse.polarimetric.optimize import MapParameters
 from polarbssrdf.inverse.results.directory import (
     OBSERVATIONS_DIR,
     RESULT_FILE,
+    read_result,
     read_stage_maps,
     register_map,
     stage_map_path,
@@ -65,16 +66,23 @@ def dynamic_settings(config):
     return frame_config, weights
 
 
-def static_maps(outdir):
-    """The static stage's maps in ``outdir``; a clear error when there are none."""
+def static_frame_of(outdir) -> int:
+    """The frame the static stage fitted in ``outdir`` (``reconstruct --frame``; a result holds
+    one static frame); a clear error when there are no static maps."""
     if not (Path(outdir) / RESULT_FILE).is_file():
         raise FileNotFoundError(f"{outdir} holds no {RESULT_FILE}: the dynamic stage starts from "
                                 "the static stage's maps; run it first ('--stages static,dynamic')")
-    try:
-        return read_stage_maps(outdir, "static", 0)
-    except FileNotFoundError:
+    frames = sorted(int(r["frame"]) for r in read_result(outdir).maps if r["stage"] == "static")
+    if not frames:
         raise FileNotFoundError(f"{outdir}/{RESULT_FILE} lists no static maps: run the static stage "
-                                "first ('--stages static,dynamic')") from None
+                                "first ('--stages static,dynamic')")
+    return frames[0]
+
+
+def static_maps(outdir):
+    """The static stage's maps in ``outdir`` (of the frame it fitted); a clear error when there
+    are none."""
+    return read_stage_maps(outdir, "static", static_frame_of(outdir))
 
 
 def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(), *,
@@ -144,10 +152,13 @@ class FrameTask:
                          variant=self.variant, threads=self.threads)
 
 
-def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), static_frame=0,
+def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), static_frame=None,
                       frames=None, workers=None, scheduler=None, resume=False, progress=True,
                       variant="llvm_ad_mono_polarized", label=STAGE):
     """Fit every frame but ``static_frame`` (or ``frames``) and register the finished ones.
+
+    ``static_frame`` is the frame of the static maps in ``outdir`` (None: whichever it is);
+    every frame starts from those maps.
 
     Frames whose map file exists are skipped when ``resume``; ``label`` names the stage
     on the progress bar. Returns
@@ -156,7 +167,12 @@ def run_dynamic_stage(capture, outdir, texture_size, config, *, holdout=(), stat
     """
     started = time.perf_counter()
     outdir = Path(outdir)
-    static_maps(outdir)  # the clear error before any work
+    fitted = static_frame_of(outdir)  # the clear error before any work
+    if static_frame is None:
+        static_frame = fitted
+    elif int(static_frame) != fitted:
+        raise ValueError(f"{outdir}/{RESULT_FILE} holds the static maps of frame {fitted}, not "
+                         f"{static_frame}: the dynamic stage starts from the static frame's maps")
     dynamic_settings(config)  # and a bad config's
     if frames is None:
         frames = [f.index for f in capture.manifest.frames if f.index != static_frame]

@@ -1,0 +1,80 @@
+"""Issue 32: which frames the stages fit (``--frame``), and every requested stage's needs
+checked before the first one starts.
+
+Tiny spheres (4 views, 48 x 48 px, T = 16), 1 epoch per stage.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import mitsuba as mi
+
+from helpers import run_cli
+from polarbssrdf.errors import EXIT_USER_ERROR
+
+T = 16
+SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=2)
+CONFIG = {"patch_size": 16, "min_steps_per_epoch": 1}
+
+
+def _synthesize(directory, bands=None, **overrides):
+    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    synthesize(directory, SynthesisSettings(**{**SETTINGS, **overrides}), bands=bands,
+               progress=False)
+    return directory
+
+
+@pytest.fixture(scope="module")
+def two_frame_capture(tmp_path_factory):
+    return _synthesize(tmp_path_factory.mktemp("two_frames") / "capture", frames=2)
+
+
+@pytest.fixture(scope="module")
+def config_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("config") / "small.json"
+    path.write_text(json.dumps(CONFIG))
+    return path
+
+
+def fit(capture, outdir, config_file, *extra):
+    return run_cli("reconstruct", capture, outdir, "--iterations", "1", "--config", config_file,
+                   "--quiet", *extra)
+
+
+def registered(outdir):
+    maps = json.loads((outdir / "result.json").read_text())["maps"]
+    return sorted((record["stage"], record["frame"]) for record in maps)
+
+
+# --------------------------------------------------------------------------- item 2
+def test_frame_is_the_static_frame_and_dynamic_fits_the_others(two_frame_capture, config_file,
+                                                               tmp_path):
+    outdir = tmp_path / "rf1"
+    status, stdout, stderr = fit(two_frame_capture, outdir, config_file,
+                                 "--stages", "static,dynamic", "--frame", "1")
+    assert status == 0, stderr
+    assert registered(outdir) == [("dynamic", 0), ("static", 1)]
+    assert "static frame 1" in stdout
+
+
+def test_a_later_dynamic_stage_starts_from_the_runs_static_frame(two_frame_capture,
+                                                                 config_file, tmp_path):
+    outdir = tmp_path / "rf1"
+    status, _, stderr = fit(two_frame_capture, outdir, config_file, "--stages", "static",
+                            "--frame", "1")
+    assert status == 0, stderr
+    # another static frame than the run's: refused before any work, naming both
+    status, _, stderr = fit(two_frame_capture, outdir, config_file, "--stages", "dynamic",
+                            "--frame", "0")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1, stderr
+    assert "static frame 1" in stderr and "--frame 0" in stderr
+    assert registered(outdir) == [("static", 1)]
+    # without --frame: the run's static frame
+    status, _, stderr = fit(two_frame_capture, outdir, config_file, "--stages", "dynamic")
+    assert status == 0, stderr
+    assert registered(outdir) == [("dynamic", 0), ("static", 1)]
