@@ -32,6 +32,7 @@ from pathlib import Path
 import mitsuba as mi
 
 from polarbssrdf.errors import CommandError
+from polarbssrdf.inverse.biophysical.model import PARAMETERS as BIO_PARAMETERS
 from polarbssrdf.inverse.biophysical.stage import run_bio_stage
 from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
 from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
@@ -187,6 +188,25 @@ def static_frame(outdir: Path, frame: int | None, continuing: bool) -> int:
     return fitted
 
 
+def check_stage_needs(capture, stages) -> None:
+    """Refuse (:class:`CommandError`) a requested stage the capture cannot feed, before the
+    first stage starts: not after the static and dynamic stages' minutes.
+
+    The biophysical stage fits its parameters (C_m, beta_m, C_h_out, C_h_in) per texel
+    from the subsurface albedo of every band: it needs at least as many bands.
+    """
+    bands = list(capture.manifest.band_names)
+    if "bio" in stages and len(bands) < len(BIO_PARAMETERS):
+        others = ",".join(stage for stage in stages if stage != "bio")
+        advice = (f"drop 'bio' from --stages (e.g. '--stages {others}')" if others
+                  else "fit it on a capture with more bands")
+        raise CommandError(f"capture '{capture.directory}' has {len(bands)} band"
+                           f"{'s' if len(bands) != 1 else ''} ({', '.join(bands)}): the 'bio' "
+                           f"stage fits {len(BIO_PARAMETERS)} parameters "
+                           f"({', '.join(BIO_PARAMETERS)}) from them and needs at least "
+                           f"{len(BIO_PARAMETERS)}; {advice}")
+
+
 def run_settings(stages, config, holdout, frame) -> dict:
     """What defines a run besides the capture and texture size (``result.json`` settings)."""
     return {"stages": list(stages), "frame": int(frame), "holdout": sorted(holdout),
@@ -324,6 +344,7 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     frame = static_frame(Path(outdir), frame, continuing)
     capture = load_input_capture(capture, frame)
     check_frame_and_holdout(capture, frame, holdout)
+    check_stage_needs(capture, stages)
     if texture is None:
         texture = (int(capture.truth.texture_size) if capture.truth is not None
                    else DEFAULT_TEXTURE)

@@ -78,3 +78,30 @@ def test_a_later_dynamic_stage_starts_from_the_runs_static_frame(two_frame_captu
     status, _, stderr = fit(two_frame_capture, outdir, config_file, "--stages", "dynamic")
     assert status == 0, stderr
     assert registered(outdir) == [("dynamic", 0), ("static", 1)]
+
+
+# --------------------------------------------------------------------------- item 9
+@pytest.fixture(scope="module")
+def three_band_capture(tmp_path_factory):
+    from polarbssrdf.spectral import shipped_default_bands
+
+    return _synthesize(tmp_path_factory.mktemp("three_bands") / "capture",
+                       bands=shipped_default_bands()[:3])
+
+
+def test_a_stage_the_capture_cannot_feed_is_refused_before_the_first_starts(
+        three_band_capture, config_file, tmp_path):
+    outdir = tmp_path / "out"
+    status, _, stderr = fit(three_band_capture, outdir, config_file)  # every stage
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1, stderr
+    assert "3 bands" in stderr and "at least 4" in stderr and "'bio'" in stderr
+    assert "--stages static,dynamic" in stderr
+    assert not outdir.exists()  # nothing ran, nothing was written
+    # the stages it can feed run
+    status, _, stderr = fit(three_band_capture, outdir, config_file, "--stages", "static")
+    assert status == 0, stderr
+    # and a later bio stage on that result is refused the same way, the result untouched
+    before = (outdir / "result.json").read_text()
+    status, _, stderr = fit(three_band_capture, outdir, config_file, "--stages", "bio")
+    assert status == EXIT_USER_ERROR and "at least 4" in stderr
+    assert (outdir / "result.json").read_text() == before and not (outdir / "bio").exists()
