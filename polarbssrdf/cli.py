@@ -3,14 +3,16 @@
 Each command lives in the module of its stage and adds itself through a
 ``register(subparsers)`` function, so this file only lists them. :func:`main`
 turns the errors a user can fix (:func:`polarbssrdf.errors.run_command`), and
-Ctrl-C, into one line on stderr.
+Ctrl-C or SIGTERM, into one line on stderr.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import threading
 
 import polarbssrdf
 from polarbssrdf.errors import EXIT_INTERRUPTED, caused_by_interrupt, run_command
@@ -58,14 +60,44 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def interrupted_message(args) -> str:
-    """The line printed after Ctrl-C; commands with ``--resume`` say how to continue.
+class _TerminationAsInterrupt:
+    """While active, SIGTERM (``kill PID``, a batch system's time limit) raises
+    ``KeyboardInterrupt`` as Ctrl-C does, so the command stops the same way: atomic
+    outputs, no traceback, the line saying how to resume. ``signal_number`` is the signal
+    that arrived (None: none, or Ctrl-C), for the exit status 128 + N shells expect.
+
+    Only the main thread may set handlers; elsewhere (an embedding application's worker
+    thread) SIGTERM keeps its handler.
+    """
+
+    def __init__(self):
+        self.signal_number, self._previous = None, None
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGTERM, self._interrupt)
+        return self
+
+    def __exit__(self, *exc_info):
+        if self._previous is not None:
+            signal.signal(signal.SIGTERM, self._previous)
+        return False
+
+    def _interrupt(self, number, frame):
+        self.signal_number = number
+        raise KeyboardInterrupt
+
+
+def interrupted_message(args, signal_number=None) -> str:
+    """The line printed after Ctrl-C (or SIGTERM: ``signal_number``); commands with
+    ``--resume`` say how to continue.
 
     ``args`` is ``None`` if the interrupt came before the command line was parsed.
     """
+    how = "" if signal_number is None else f" ({signal.Signals(signal_number).name})"
     if args is None:
-        return "polarbssrdf: interrupted"
-    message = f"polarbssrdf {args.command}: interrupted"
+        return f"polarbssrdf: interrupted{how}"
+    message = f"polarbssrdf {args.command}: interrupted{how}"
     if hasattr(args, "resume"):
         message += "; rerun with --resume to continue"
     return message
@@ -74,16 +106,19 @@ def interrupted_message(args) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv`` (default: ``sys.argv[1:]``), run the command, return the exit status."""
     args = None
-    try:
-        args = build_parser().parse_args(argv)
-        return run_command(args)
-    except BaseException as error:
-        if not caused_by_interrupt(error):
-            raise
-        # Ctrl-C is not an error of the program: no traceback. Outputs are written
-        # atomically (temporary file + rename), so no partial file is left behind.
-        print(interrupted_message(args), file=sys.stderr)
-        return EXIT_INTERRUPTED
+    with _TerminationAsInterrupt() as termination:
+        try:
+            args = build_parser().parse_args(argv)
+            return run_command(args)
+        except BaseException as error:
+            if not caused_by_interrupt(error):
+                raise
+            # Ctrl-C is not an error of the program: no traceback. Outputs are written
+            # atomically (temporary file + rename), so no partial file is left behind.
+            print(interrupted_message(args, termination.signal_number), file=sys.stderr)
+            if termination.signal_number is not None:
+                return 128 + termination.signal_number  # 143 after SIGTERM, as shells report
+            return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -193,6 +193,53 @@ def test_sigint_to_a_running_render(tmp_path):
         assert not (outdir / "render.json").exists()
 
 
+def terminate_myself(args):
+    import os
+
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(10)  # the handler raises here
+    raise AssertionError("SIGTERM did not stop the command")
+
+
+def test_sigterm_stops_like_ctrl_c_with_status_143(monkeypatch, capsys):
+    """Issue 32, item 10: SIGTERM exited 143 without the line Ctrl-C prints."""
+    monkeypatch.setattr("polarbssrdf.synth.commands.run", terminate_myself)
+    before = signal.getsignal(signal.SIGTERM)
+    assert main(["synth", "out"]) == 128 + signal.SIGTERM
+    captured = capsys.readouterr()
+    assert captured.err == ("polarbssrdf synth: interrupted (SIGTERM); rerun with --resume to "
+                            "continue\n")
+    assert signal.getsignal(signal.SIGTERM) is before  # main() leaves the handler as it was
+
+
+def test_sigterm_to_a_running_synth(tmp_path):
+    """A real SIGTERM while ``polarbssrdf synth`` renders: status 143, the resume line."""
+    if not Path("/proc/self/maps").exists():
+        pytest.skip("needs /proc to see when the render has started")
+    script = Path(sys.executable).parent / "polarbssrdf"
+    launcher = [str(script)] if script.exists() else [sys.executable, "-m", "polarbssrdf"]
+    child = subprocess.Popen([*launcher, "synth", str(tmp_path / "capture"), "--object",
+                              "sphere", "--views", "4", "--resolution", "256", "--texture",
+                              "32", "--spp", "64", "--quiet"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 15
+        while not variant_loaded(child.pid, "llvm_ad_mono_polarized"):
+            if child.poll() is not None or time.monotonic() > deadline:
+                pytest.skip("could not catch synth while it was running")
+            time.sleep(0.02)
+        child.send_signal(signal.SIGTERM)
+        out, err = child.communicate(timeout=60)
+    finally:
+        child.kill()
+    if child.returncode == 0:
+        pytest.skip("synth finished before the signal arrived")
+    assert child.returncode == 143, err
+    assert "Traceback" not in err
+    assert err.splitlines()[-1] == ("polarbssrdf synth: interrupted (SIGTERM); rerun with "
+                                    "--resume to continue")
+
+
 def test_plugin_error_message_keeps_context_and_the_plugin_message():
     message = plugin_error_message(RuntimeError(MITSUBA_PLUGIN_ERROR))
     assert message == ('At scene.xml (line 53, col 10): failed to instantiate bsdf plugin of '
