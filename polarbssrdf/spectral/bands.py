@@ -179,9 +179,16 @@ def bands_to_json(bands) -> str:
 def bands_from_json(text: str) -> list[Band]:
     """Inverse of :func:`bands_to_json`."""
     data = json.loads(text)
+    if not isinstance(data, dict):
+        raise ValueError(f"expected a JSON object {{\"schema_version\": {BAND_SCHEMA_VERSION}, "
+                         f"\"bands\": [...]}}, got a JSON {type(data).__name__}")
     if data.get("schema_version") != BAND_SCHEMA_VERSION:
         raise ValueError(f"unsupported band schema version {data.get('schema_version')!r}")
-    return [Band.from_dict(b) for b in data["bands"]]
+    entries = data.get("bands")
+    if not isinstance(entries, list) or not all(isinstance(b, dict) for b in entries):
+        raise ValueError("'bands' must be a list of objects with 'name', 'wavelengths_nm' and "
+                         "'weights'")
+    return [Band.from_dict(b) for b in entries]
 
 
 def band_weights_matrix(bands, wavelengths_nm) -> np.ndarray:

@@ -80,3 +80,19 @@ def test_out_may_not_write_inside_a_stage_directory(result_dir):
     status, _, stderr = run_cli("evaluate", result_dir, "--out", target)
     assert status == EXIT_USER_ERROR and "inside the result's static/ directory" in stderr
     assert not target.exists()
+
+
+# --------------------------------------------------------------------------- item 7
+@pytest.mark.parametrize("damage", ["truncated", "replaced"])
+def test_a_damaged_checkpoint_on_resume_is_one_line_naming_it(result_dir, capture_dir,
+                                                              config_file, tmp_path, damage):
+    import shutil
+
+    outdir = tmp_path / "R"
+    shutil.copytree(result_dir, outdir)
+    checkpoint = outdir / "static" / "checkpoint.npz"
+    data = checkpoint.read_bytes()
+    checkpoint.write_bytes(data[:len(data) // 2] if damage == "truncated" else b'{"a": 1}\n')
+    status, _, stderr = run_cli(*static_args(capture_dir, outdir, config_file, "--resume"))
+    assert status == EXIT_USER_ERROR, stderr
+    assert stderr.count("\n") == 1 and str(checkpoint) in stderr and "unreadable" in stderr

@@ -115,3 +115,24 @@ def test_shipped_default_band_file_is_the_default_bands(tmp_path):
     (tmp_path / "empty.json").write_text('{"schema_version": 1, "bands": []}')
     with pytest.raises(ValueError, match="at least one band"):
         read_bands(tmp_path / "empty.json")
+
+
+@pytest.mark.parametrize("content", [
+    [{"name": "B", "wavelengths_nm": [400, 500], "weights": [1, 1]}],  # the list alone
+    {"schema_version": 1, "bands": {"B": {}}},
+    {"schema_version": 1, "bands": ["B"]},
+    {"schema_version": 1, "bands": [{"name": "B", "wavelengths_nm": 400, "weights": 1}]},
+])
+@pytest.mark.parametrize("command", [["skin", "bands", "--bands"],
+                                     ["synth", "OUT", "--object", "sphere", "--bands"]])
+def test_a_malformed_band_file_is_one_line_naming_it(tmp_path, content, command):
+    """Issue 32, item 7: a bare JSON list gave an AttributeError from both commands."""
+    from helpers import run_cli
+
+    path = tmp_path / "bands.json"
+    path.write_text(json.dumps(content))
+    argv = [str(tmp_path / "capture") if word == "OUT" else word for word in command]
+    status, _, stderr = run_cli(*argv, path)
+    assert status == 2, stderr
+    assert stderr.count("\n") == 1 and str(path) in stderr and "not a band file" in stderr
+    assert not (tmp_path / "capture").exists()

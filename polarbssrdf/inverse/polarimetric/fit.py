@@ -44,6 +44,7 @@ import dataclasses
 import hashlib
 import io
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -129,8 +130,17 @@ def load_checkpoint(path, params, fingerprint=""):
 
     Refuses a checkpoint written by a run with other settings (``fingerprint``).
     """
-    with np.load(path) as data:
-        state = {key: data[key] for key in data.files}
+    try:
+        with np.load(path) as data:
+            state = {key: data[key] for key in data.files}
+        for key in ("epoch", "history"):
+            if key not in state:
+                raise KeyError(key)
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as error:
+        # cut short (a full disk, a copy that stopped) or replaced by another file
+        raise ValueError(f"checkpoint {path} is unreadable ({type(error).__name__}: {error}); "
+                         "remove it to fit that stage from its start, or rerun with "
+                         "--overwrite") from None
     stored = bytes(state.get("fingerprint", np.zeros(0, np.uint8))).decode("utf-8")
     if stored != fingerprint:
         raise ValueError(f"checkpoint {path} was written by a run with other settings (config, "
