@@ -3,11 +3,13 @@ command turns the errors a user can fix into one line (:func:`run_command`)."""
 
 from __future__ import annotations
 
+import contextvars
 import re
 import sys
 
 __all__ = ["CommandError", "EXIT_INTERRUPTED", "EXIT_USER_ERROR", "USER_ERRORS",
-           "caused_by_interrupt", "is_plugin_error", "plugin_error_message", "run_command"]
+           "caused_by_interrupt", "is_plugin_error", "option", "plugin_error_message",
+           "run_command"]
 
 _TRACEBACK_HEADER = "Traceback (most recent call last):"
 
@@ -111,12 +113,34 @@ def caused_by_interrupt(error: BaseException) -> bool:
     return False
 
 
+_ON_COMMAND_LINE = contextvars.ContextVar("polarbssrdf_on_command_line", default=False)
+"""True while :func:`run_command` runs a command: messages then name command-line options."""
+
+
+def option(name: str, value=None) -> str:
+    """How a message names a setting the user passed: the command line's option while a
+    command runs (:func:`run_command`), else the Python parameter.
+
+    ``option("stages")`` is ``--stages`` or ``stages``; ``option("stages", "static,bio")``
+    is ``--stages static,bio`` or ``stages='static,bio'``; ``option("resume", True)`` is
+    ``--resume`` or ``resume=True`` (a switch).
+    """
+    if _ON_COMMAND_LINE.get():
+        flag = "--" + name.replace("_", "-")
+        return flag if value is None or value is True else f"{flag} {value}"
+    return name if value is None else f"{name}={value!r}"
+
+
 USER_ERRORS = (CommandError, FileNotFoundError, FileExistsError, ValueError)
 """Exceptions whose message is for the user: printed on one line, exit status 2."""
 
 
 def run_command(args) -> int:
-    """Run the parsed command; errors a user can fix become one line on stderr and status 2."""
+    """Run the parsed command; errors a user can fix become one line on stderr and status 2.
+
+    While it runs, messages name command-line options (:func:`option`).
+    """
+    token = _ON_COMMAND_LINE.set(True)
     try:
         return int(args.run(args) or 0)
     except Exception as error:
@@ -132,3 +156,5 @@ def run_command(args) -> int:
             raise
         print(f"polarbssrdf {args.command}: error: {message}", file=sys.stderr)
         return EXIT_USER_ERROR
+    finally:
+        _ON_COMMAND_LINE.reset(token)

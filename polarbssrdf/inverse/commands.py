@@ -50,16 +50,6 @@ def integer_at_least(minimum: int):
     return parse
 
 
-def _name_list(text: str) -> list[str]:
-    """``"a, b,a"`` -> ``["a", "b"]`` (order kept, duplicates and empty items dropped)."""
-    names = []
-    for item in text.split(","):
-        item = item.strip()
-        if item and item not in names:
-            names.append(item)
-    return names
-
-
 def register(subparsers) -> None:
     """Add ``reconstruct`` and ``evaluate`` to the ``polarbssrdf`` argument parser."""
     parser = subparsers.add_parser(
@@ -194,8 +184,9 @@ def run_reconstruct(args) -> int:
     """Execute ``polarbssrdf reconstruct``; returns the exit status (1 if a frame failed)."""
     from polarbssrdf.inverse.pipeline import reconstruct
 
-    result = reconstruct(args.capture, args.outdir, stages=_name_list(args.stages),
-                         config=args.config, holdout=_name_list(args.holdout),
+    # the comma-separated lists go as they are: reconstruct() splits them, as from Python
+    result = reconstruct(args.capture, args.outdir, stages=args.stages,
+                         config=args.config, holdout=args.holdout,
                          texture=args.texture, frame=args.frame, iterations=args.iterations,
                          workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                          overwrite=args.overwrite, progress=not args.quiet,

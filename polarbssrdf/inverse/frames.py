@@ -30,7 +30,7 @@ import uuid
 
 from tqdm import tqdm
 
-from polarbssrdf.errors import CommandError
+from polarbssrdf.errors import CommandError, option
 
 SCHEDULER_TIMEOUT_S = 5.0
 """How long :func:`check_scheduler` waits for a scheduler to answer."""
@@ -150,12 +150,12 @@ def check_scheduler(address, timeout=None) -> None:
     try:
         asyncio.run(probe())
     except ValueError as error:  # e.g. "missing port number in address 'host'"
-        raise CommandError(f"--scheduler {address!r} is not a Dask scheduler address ({error}); "
+        raise CommandError(f"{option('scheduler')} {address!r} is not a Dask scheduler address ({error}); "
                            "give one like tcp://10.0.0.1:8786") from None
     except (OSError, asyncio.TimeoutError) as error:
         raise CommandError(f"no Dask scheduler answers at {address} ({error}): start one there "
                            f"('dask scheduler', then 'dask worker {address}' on each machine) "
-                           "or drop --scheduler to run the frames here") from None
+                           f"or drop {option('scheduler')} to run the frames here") from None
 
 
 def scheduling_overhead(records, wall_seconds, workers):

@@ -25,13 +25,14 @@ call these functions; a Python script can do the same::
 from __future__ import annotations
 
 import json
+import numbers
 import sys
 import time
 from pathlib import Path
 
 import mitsuba as mi
 
-from polarbssrdf.errors import CommandError
+from polarbssrdf.errors import CommandError, option
 from polarbssrdf.inverse.biophysical.model import PARAMETERS as BIO_PARAMETERS
 from polarbssrdf.inverse.biophysical.stage import run_bio_stage
 from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
@@ -105,18 +106,52 @@ class Reconstruction(ResultDirectory):
         return "\n".join(lines)
 
 
+def name_list(value, parameter: str) -> list[str]:
+    """Names from a string (``"static,bio"``, ``"cam03"``: comma-separated, as on the command
+    line) or a sequence of strings; order kept, duplicates and blank items dropped.
+
+    A string is never split into its letters; anything else is a :class:`CommandError`
+    naming ``parameter``.
+    """
+    items = value.split(",") if isinstance(value, str) else value
+    try:
+        items = list(items)
+    except TypeError:
+        items = None
+    if items is None or not all(isinstance(item, str) for item in items):
+        raise CommandError(f"{option(parameter)} must be a string of comma-separated names or "
+                           f"a sequence of strings, got {value!r}")
+    return list(dict.fromkeys(item.strip() for item in items if item.strip()))
+
+
 def stage_list(stages) -> list[str]:
-    """``stages`` (names, any order, duplicates allowed) in run order; unknown names are a
-    :class:`CommandError` that lists the known ones."""
-    names = list(dict.fromkeys(stages))
+    """``stages`` (a string ``"static,bio"`` or names, any order, duplicates allowed) in run
+    order; unknown names are a :class:`CommandError` that lists the known ones."""
+    names = name_list(stages, "stages")
     if not names:
-        raise CommandError(f"--stages is empty; known stages: {', '.join(STAGES)}")
+        raise CommandError(f"{option('stages')} is empty; known stages: {', '.join(STAGES)}")
     unknown = [name for name in names if name not in STAGES]
     if unknown:
         raise CommandError(f"unknown stage{'s' if len(unknown) > 1 else ''} "
-                           f"{', '.join(repr(n) for n in unknown)} in --stages; known stages: "
-                           f"{', '.join(STAGES)}")
+                           f"{', '.join(repr(n) for n in unknown)} in {option('stages')}; known "
+                           f"stages: {', '.join(STAGES)}")
     return [stage for stage in STAGES if stage in names]
+
+
+RUN_NUMBERS = {"texture": 8, "frame": 0, "iterations": 0, "workers": 1}
+"""The integer settings of :func:`reconstruct` and their least values (the command line's
+``integer_at_least``), checked before anything is written."""
+
+
+def check_run_numbers(**values) -> None:
+    """Each given value (None: the default) is an integer at least :data:`RUN_NUMBERS`'s; a
+    :class:`CommandError` naming the parameter otherwise (e.g. ``texture=32.5``)."""
+    for name, value in values.items():
+        if value is None:
+            continue
+        least = RUN_NUMBERS[name]
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
+            raise CommandError(f"{option(name)} must be an integer >= {least}, got {value!r}")
 
 
 def load_input_capture(path: Path, frame: int | None = None):
@@ -147,7 +182,7 @@ def check_frame_and_holdout(capture, frame: int, holdout: list[str]) -> None:
     cameras = [camera.name for camera in manifest.cameras]
     unknown = [name for name in holdout if name not in cameras]
     if unknown:
-        raise CommandError(f"--holdout names unknown camera{'s' if len(unknown) > 1 else ''} "
+        raise CommandError(f"{option('holdout')} names unknown camera{'s' if len(unknown) > 1 else ''} "
                            f"{', '.join(unknown)}; the capture's cameras are: "
                            f"{', '.join(cameras)}")
     polarized = [r for r in manifest.frame(frame).images if r.kind in ("analyser", "raw")]
@@ -159,11 +194,11 @@ def check_frame_and_holdout(capture, frame: int, holdout: list[str]) -> None:
     seen = {r.camera for r in polarized}
     without = [name for name in holdout if name not in seen]
     if without:
-        raise CommandError(f"--holdout camera{'s' if len(without) > 1 else ''} "
+        raise CommandError(f"{option('holdout')} camera{'s' if len(without) > 1 else ''} "
                            f"{', '.join(without)} took no polarization image in frame {frame}: "
                            "nothing to validate against")
     if seen <= set(holdout):
-        raise CommandError(f"--holdout leaves out every camera of frame {frame} "
+        raise CommandError(f"{option('holdout')} leaves out every camera of frame {frame} "
                            f"({', '.join(sorted(seen))}): nothing left to fit")
 
 
@@ -182,9 +217,10 @@ def static_frame(outdir: Path, frame: int | None, continuing: bool) -> int:
         return 0 if frame is None else int(frame)
     if frame is not None and int(frame) != fitted:
         raise CommandError(f"the run in '{outdir}' fitted static frame {fitted}, and the later "
-                           f"stages start from its maps: --frame {frame} would need another "
-                           f"static fit; drop --frame (or pass --frame {fitted}), or run "
-                           f"'--stages static,...' with --frame {frame} into a new directory")
+                           f"stages start from its maps: {option('frame', frame)} would need "
+                           f"another static fit; drop {option('frame')} (or pass "
+                           f"{option('frame', fitted)}), or fit the static stage with "
+                           f"{option('frame', frame)} into a new directory")
     return fitted
 
 
@@ -198,7 +234,8 @@ def check_stage_needs(capture, stages) -> None:
     bands = list(capture.manifest.band_names)
     if "bio" in stages and len(bands) < len(BIO_PARAMETERS):
         others = ",".join(stage for stage in stages if stage != "bio")
-        advice = (f"drop 'bio' from --stages (e.g. '--stages {others}')" if others
+        advice = (f"drop 'bio' from {option('stages')} (e.g. {option('stages', others)})"
+                  if others
                   else "fit it on a capture with more bands")
         raise CommandError(f"capture '{capture.directory}' has {len(bands)} band"
                            f"{'s' if len(bands) != 1 else ''} ({', '.join(bands)}): the 'bio' "
@@ -237,8 +274,9 @@ def resume_differences(outdir: Path, capture, texture: int, settings: dict) -> l
         differences += [f"capture contents: {text}"
                         for text in capture_differences(manifest, capture)]
     if manifest.texture_size != texture:
-        differences.append(f"--texture: {manifest.texture_size} (first run) vs {texture} (now)")
-    names = {"stages": "--stages", "frame": "--frame", "holdout": "--holdout"}
+        differences.append(f"{option('texture')}: {manifest.texture_size} (first run) vs "
+                           f"{texture} (now)")
+    names = {name: option(name) for name in ("stages", "frame", "holdout")}
     old = json.loads(json.dumps(manifest.settings))
     new = json.loads(json.dumps(settings))
     pairs = []
@@ -251,7 +289,7 @@ def resume_differences(outdir: Path, capture, texture: int, settings: dict) -> l
     for path, before, after in pairs:
         name = names.get(path, path)
         if path == "config.iterations":
-            name = "config.iterations (--iterations)"
+            name = f"config.iterations ({option('iterations')})"
         differences.append(f"{name}: {_short(before)} (first run) vs {_short(after)} (now)")
     return differences
 
@@ -302,12 +340,14 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
         Result directory: new or empty; an earlier run with ``resume`` (continue it,
         same settings) or ``overwrite`` (start over). Stages without ``"static"``
         add to an earlier run of the same capture and texture size.
-    stages : sequence of str
-        Any of ``"static"``, ``"dynamic"``, ``"bio"``; run in that order.
+    stages : str or sequence of str
+        Any of ``"static"``, ``"dynamic"``, ``"bio"``, as a sequence or a comma-separated
+        string (``"static"``, ``"static,dynamic"``); run in that order.
     config : None, StaticConfig, dict or path
         The run's settings (docs/reconstruct.md); None: the paper's.
-    holdout : sequence of str
-        Cameras left out of the fit, for held-out re-renders (:func:`evaluate`).
+    holdout : str or sequence of str
+        Cameras left out of the fit, for held-out re-renders (:func:`evaluate`): a sequence
+        or a comma-separated string (``"cam03"``).
     texture : int, optional
         Maps are T x T texels; default the capture's truth size, else
         :data:`DEFAULT_TEXTURE`.
@@ -328,6 +368,9 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     variant : str
         A JIT autodiff polarized Mitsuba variant (``cuda_ad_mono_polarized`` on a GPU).
 
+    Every argument is checked before anything is written; errors name these parameters
+    (on the command line, its options).
+
     Returns
     -------
     Reconstruction
@@ -336,8 +379,9 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     """
     started = time.perf_counter()
     stages = stage_list(stages)
+    holdout = name_list(holdout, "holdout")
+    check_run_numbers(texture=texture, frame=frame, iterations=iterations, workers=workers)
     check_variant(variant, mi.variants())
-    holdout = list(dict.fromkeys(holdout))
     config = run_config(config, iterations)
     # later stages on an earlier run read its maps and add their own (no resume needed)
     continuing = stages[0] != STAGES[0]
@@ -357,16 +401,17 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
     settings = run_settings(stages, config, holdout, frame)
     if overwrite and stages[0] != STAGES[0]:
         # overwriting removes the static maps, which these stages would then read
-        raise CommandError(f"--overwrite with --stages {','.join(stages)} would remove the "
-                           "static maps those stages read; include 'static' in --stages to "
-                           "start over, or drop --overwrite to add to the run in "
-                           f"'{outdir}'")
+        raise CommandError(f"{option('overwrite', True)} with {option('stages', ','.join(stages))} "
+                           "would remove the static maps those stages read; include 'static' in "
+                           f"{option('stages')} to start over, or drop {option('overwrite')} "
+                           f"to add to the run in '{outdir}'")
     if resume and not continuing and outdir.is_dir() and any(outdir.iterdir()):
         differences = resume_differences(outdir, capture, texture, settings)
         if differences:
             raise CommandError(f"cannot resume in '{outdir}': it holds a run with other settings "
                                f"({'; '.join(differences)}); rerun with its settings to continue "
-                               "it, or pass --overwrite instead of --resume to start over")
+                               f"it, or pass {option('overwrite', True)} instead of "
+                               f"{option('resume', True)} to start over")
     if scheduler is not None and set(stages) & {"dynamic", "bio"}:
         check_scheduler(scheduler)  # before any stage: not after the static stage's minutes
     select_variant(variant)

@@ -96,3 +96,48 @@ def test_a_damaged_checkpoint_on_resume_is_one_line_naming_it(result_dir, captur
     status, _, stderr = run_cli(*static_args(capture_dir, outdir, config_file, "--resume"))
     assert status == EXIT_USER_ERROR, stderr
     assert stderr.count("\n") == 1 and str(checkpoint) in stderr and "unreadable" in stderr
+
+
+# --------------------------------------------------------------------------- item 12
+def test_python_api_takes_a_string_or_a_sequence_of_names(capture_dir, tmp_path):
+    from polarbssrdf.inverse import reconstruct
+
+    result = reconstruct(capture_dir, tmp_path / "R", stages="static", holdout="cam03",
+                         config=dict(CONFIG, iterations=1), progress=False)
+    settings = json.loads((tmp_path / "R" / "result.json").read_text())["settings"]
+    assert settings["stages"] == ["static"] and settings["holdout"] == ["cam03"]
+    assert result.holdout == ["cam03"] and result.stages == ["static"]
+
+
+@pytest.mark.parametrize("keywords, named, not_named", [
+    (dict(stages="static,colour"), "in stages;", "--stages"),
+    (dict(holdout=("cam01", "cam99")), "holdout names unknown camera cam99", "--holdout"),
+    (dict(texture=32.5), "texture must be an integer >= 8, got 32.5", "--texture"),
+    (dict(iterations=-1), "iterations must be an integer >= 0", "--iterations"),
+    (dict(frame="1"), "frame must be an integer >= 0", "--frame"),
+    (dict(stages=3), "stages must be a string", "--stages"),
+])
+def test_python_api_refuses_before_writing_and_names_parameters(capture_dir, tmp_path,
+                                                                keywords, named, not_named):
+    from polarbssrdf.errors import CommandError
+    from polarbssrdf.inverse import reconstruct
+
+    outdir = tmp_path / "R"
+    with pytest.raises(CommandError) as error:
+        reconstruct(capture_dir, outdir, **{"stages": "static", **keywords},
+                    config=dict(CONFIG, iterations=1), progress=False)
+    assert named in str(error.value) and not_named not in str(error.value)
+    assert not outdir.exists()
+
+
+def test_python_api_messages_name_parameters_where_the_cli_names_options(result_dir,
+                                                                         capture_dir,
+                                                                         config_file):
+    from polarbssrdf.inverse import reconstruct
+
+    with pytest.raises(FileExistsError) as error:
+        reconstruct(capture_dir, result_dir, stages="static", progress=False)
+    assert "resume=True" in str(error.value) and "overwrite=True" in str(error.value)
+    assert "--resume" not in str(error.value)
+    status, _, stderr = run_cli(*static_args(capture_dir, result_dir, config_file))
+    assert status == EXIT_USER_ERROR and "--resume" in stderr and "resume=True" not in stderr

@@ -29,6 +29,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
+from polarbssrdf.errors import option
 from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.inverse.frames import run_frames
 from polarbssrdf.inverse.observations.build import load_or_build_observations
@@ -71,11 +72,12 @@ def static_frame_of(outdir) -> int:
     one static frame); a clear error when there are no static maps."""
     if not (Path(outdir) / RESULT_FILE).is_file():
         raise FileNotFoundError(f"{outdir} holds no {RESULT_FILE}: the dynamic stage starts from "
-                                "the static stage's maps; run it first ('--stages static,dynamic')")
+                                "the static stage's maps; run it first "
+                                f"({option('stages', 'static,dynamic')})")
     frames = sorted(int(r["frame"]) for r in read_result(outdir).maps if r["stage"] == "static")
     if not frames:
         raise FileNotFoundError(f"{outdir}/{RESULT_FILE} lists no static maps: run the static stage "
-                                "first ('--stages static,dynamic')")
+                                f"first ({option('stages', 'static,dynamic')})")
     return frames[0]
 
 

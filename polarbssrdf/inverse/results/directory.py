@@ -28,7 +28,7 @@ import os
 import shutil
 from pathlib import Path
 
-from polarbssrdf.errors import CommandError
+from polarbssrdf.errors import CommandError, option
 from polarbssrdf.io.atomic import atomic_write_text
 from polarbssrdf.io.exr import read_exr, write_exr
 from polarbssrdf.io.identity import capture_identity, identity_differences
@@ -159,8 +159,8 @@ def continue_result_directory(outdir, capture_directory, texture_size):
     outdir = Path(outdir)
     if not (outdir / RESULT_FILE).is_file():
         raise FileNotFoundError(f"{outdir} holds no {RESULT_FILE}: the stages asked for read "
-                                "an earlier stage's maps; include it in --stages (e.g. "
-                                "'--stages static,bio')")
+                                f"an earlier stage's maps; include it in {option('stages')} "
+                                f"(e.g. {option('stages', 'static,bio')})")
     manifest = read_result(outdir)
     differences = _settings_differences(manifest, str(Path(capture_directory).resolve()),
                                         texture_size, manifest.settings)
@@ -196,11 +196,13 @@ def prepare_result_directory(outdir, capture_directory, texture_size, settings, 
                                             settings)
         if differences:
             raise ValueError(f"{outdir} holds another run ({'; '.join(differences)}): rerun with "
-                             "its settings to resume, or use --overwrite to start over")
+                             f"its settings to resume, or use {option('overwrite', True)} to "
+                             "start over")
         return manifest
     if existing and not overwrite:
-        raise FileExistsError(f"{outdir} is not empty: use --resume to continue the run in it, "
-                              "or --overwrite to start over")
+        raise FileExistsError(f"{outdir} is not empty: use {option('resume', True)} to "
+                              f"continue the run in it, or {option('overwrite', True)} to start "
+                              "over")
     outdir.mkdir(parents=True, exist_ok=True)
     if existing and overwrite:
         _remove_run_files(outdir)
