@@ -87,7 +87,8 @@ def register(subparsers) -> None:
     existing = parser.add_mutually_exclusive_group()
     existing.add_argument("--resume", action="store_true",
                           help="continue the run in OUTDIR from its last checkpoint; needs the "
-                               "same capture and settings (differences are named)")
+                               "same capture and settings (differences are named), except a "
+                               "larger --iterations, which continues every fit to the new count")
     existing.add_argument("--overwrite", action="store_true",
                           help="start over in OUTDIR, removing the earlier run's outputs and "
                                "its observation cache")

@@ -40,6 +40,7 @@ from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
 from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
 from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage, static_frame_of
+from polarbssrdf.inverse.polarimetric.config import DEFAULT_DYNAMIC_ITERATIONS
 from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
 from polarbssrdf.inverse.resources import check_memory
 from polarbssrdf.inverse.polarimetric.static import run_static_stage
@@ -53,6 +54,7 @@ from polarbssrdf.inverse.results.directory import (
     continue_result_directory,
     prepare_result_directory,
     read_result,
+    record_settings,
     record_stage_seconds,
 )
 from polarbssrdf.io import load_capture
@@ -255,12 +257,57 @@ def _short(value, limit=60) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
+EXTENDABLE_EPOCHS = {"config.iterations": None,
+                     "config.dynamic.iterations": DEFAULT_DYNAMIC_ITERATIONS}
+"""Settings a resumed run may raise: the epochs of the static stage and of each dynamic
+frame (each fit continues from its last checkpoint; the checkpoints' fingerprints leave
+them out). The value is the default of a setting a config may omit."""
+
+
+def _setting_pairs(old_settings: dict, new_settings: dict) -> list:
+    """``(path, first run's value, this run's value)`` of every differing setting; the
+    config key by key, lists (stages, holdout) whole."""
+    old = json.loads(json.dumps(old_settings))
+    new = json.loads(json.dumps(new_settings))
+    pairs = []
+    for key in list(old) + [k for k in new if k not in old]:
+        before, after = old.get(key, "<absent>"), new.get(key, "<absent>")
+        if isinstance(before, dict) and isinstance(after, dict):
+            pairs += json_differences(before, after, key)  # config: key by key
+        elif before != after:
+            pairs.append((key, before, after))
+    return pairs
+
+
+def _added_epochs(path: str, before, after) -> bool | None:
+    """For an epoch count (:data:`EXTENDABLE_EPOCHS`): whether ``after`` adds epochs to
+    ``before`` (True), keeps them (never reported) or removes some (False); None for
+    any other setting."""
+    if path not in EXTENDABLE_EPOCHS:
+        return None
+    default = EXTENDABLE_EPOCHS[path]
+    before = default if before == "<absent>" else before
+    after = default if after == "<absent>" else after
+    if not (isinstance(before, int) and isinstance(after, int)):
+        return None
+    return after >= before
+
+
+def epochs_added(old_settings: dict, new_settings: dict) -> bool:
+    """Whether ``new_settings`` differ from a run's only by more epochs (a resume that
+    continues each fit)."""
+    pairs = _setting_pairs(old_settings, new_settings)
+    return bool(pairs) and all(_added_epochs(*pair) for pair in pairs)
+
+
 def resume_differences(outdir: Path, capture, texture: int, settings: dict) -> list:
     """Settings of the run in ``outdir`` that differ from this one, as readable strings.
 
     Nested settings (the config) are compared key by key, so the message names
     e.g. ``config.iterations`` rather than the whole config; a capture at the
-    same path whose contents changed is named too.
+    same path whose contents changed is named too. More epochs
+    (:data:`EXTENDABLE_EPOCHS`) alone are no difference: the resume continues each fit;
+    fewer are one, and so are more when something else differs as well (all is named).
     """
     if not (outdir / RESULT_FILE).is_file():
         return []
@@ -277,20 +324,14 @@ def resume_differences(outdir: Path, capture, texture: int, settings: dict) -> l
         differences.append(f"{option('texture')}: {manifest.texture_size} (first run) vs "
                            f"{texture} (now)")
     names = {name: option(name) for name in ("stages", "frame", "holdout")}
-    old = json.loads(json.dumps(manifest.settings))
-    new = json.loads(json.dumps(settings))
-    pairs = []
-    for key in list(old) + [k for k in new if k not in old]:
-        before, after = old.get(key, "<absent>"), new.get(key, "<absent>")
-        if isinstance(before, dict) and isinstance(after, dict):
-            pairs += json_differences(before, after, key)  # config: key by key
-        elif before != after:
-            pairs.append((key, before, after))  # lists (holdout, stages) whole
-    for path, before, after in pairs:
-        name = names.get(path, path)
-        if path == "config.iterations":
-            name = f"config.iterations ({option('iterations')})"
-        differences.append(f"{name}: {_short(before)} (first run) vs {_short(after)} (now)")
+    names.update({"config.iterations": f"config.iterations ({option('iterations')})"})
+    pairs = _setting_pairs(manifest.settings, settings)
+    blocking = [pair for pair in pairs if _added_epochs(*pair) is not True]
+    for path, before, after in (pairs if (blocking or differences) else []):
+        text = f"{names.get(path, path)}: {_short(before)} (first run) vs {_short(after)} (now)"
+        if _added_epochs(path, before, after) is False:
+            text += " (a resume can add epochs, not remove them)"
+        differences.append(text)
     return differences
 
 
@@ -405,6 +446,7 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                            "would remove the static maps those stages read; include 'static' in "
                            f"{option('stages')} to start over, or drop {option('overwrite')} "
                            f"to add to the run in '{outdir}'")
+    extended = False  # a resume with more epochs: each fit continues, later stages redo
     if resume and not continuing and outdir.is_dir() and any(outdir.iterdir()):
         differences = resume_differences(outdir, capture, texture, settings)
         if differences:
@@ -412,6 +454,8 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                                f"({'; '.join(differences)}); rerun with its settings to continue "
                                f"it, or pass {option('overwrite', True)} instead of "
                                f"{option('resume', True)} to start over")
+        extended = ((outdir / RESULT_FILE).is_file()
+                    and epochs_added(read_result(outdir).settings, settings))
     if scheduler is not None and set(stages) & {"dynamic", "bio"}:
         check_scheduler(scheduler)  # before any stage: not after the static stage's minutes
     select_variant(variant)
@@ -419,6 +463,8 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
         continue_result_directory(outdir, capture.directory, texture)
         check_result_capture(outdir, capture, f"capture '{capture.directory}'")
     else:
+        if extended:  # every check passed: the run now goes to the larger epoch counts
+            record_settings(outdir, settings)
         prepare_result_directory(outdir, capture.directory, texture, settings, resume=resume,
                                  overwrite=overwrite, identity=capture_identity(capture, frame))
 
@@ -444,7 +490,8 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
         elif stage == "dynamic":
             report = run_dynamic_stage(capture, outdir, texture, config, holdout=tuple(holdout),
                                        static_frame=frame, workers=workers, scheduler=scheduler,
-                                       resume=resume or continuing, progress=progress,
+                                       resume=(resume or continuing) and not extended,
+                                       progress=progress,
                                        variant=variant, label=label)
             failed.update(report["failed"])
             say_confidence(stage, report["confidence"], progress)
@@ -453,8 +500,10 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                          + (f", {len(report['failed'])} failed" if report["failed"] else "")
                          + f" -> {outdir / 'dynamic'} ({time.perf_counter() - stage_start:.1f} s)")
         elif stage == "bio":
+            # after more epochs its albedo maps changed: every frame is fitted again
             summary = run_bio_stage(capture, outdir, texture, config.bio,
-                                    resume=resume or continuing, progress=progress,
+                                    resume=(resume or continuing) and not extended,
+                                    progress=progress,
                                     workers=workers, scheduler=scheduler, variant=variant,
                                     label=label)
             failed.update({f: f"bio: {reason}" for f, reason in summary["failed"].items()})

@@ -105,3 +105,27 @@ def test_a_stage_the_capture_cannot_feed_is_refused_before_the_first_starts(
     status, _, stderr = fit(three_band_capture, outdir, config_file, "--stages", "bio")
     assert status == EXIT_USER_ERROR and "at least 4" in stderr
     assert (outdir / "result.json").read_text() == before and not (outdir / "bio").exists()
+
+
+# --------------------------------------------------------------------------- item 13
+def test_resume_with_more_iterations_continues_every_fit(two_frame_capture, config_file,
+                                                        tmp_path):
+    outdir = tmp_path / "R"
+    stages = ("--stages", "static,dynamic")
+    status, _, stderr = fit(two_frame_capture, outdir, config_file, *stages)
+    assert status == 0, stderr
+    status, _, stderr = run_cli("reconstruct", two_frame_capture, outdir, *stages,
+                                "--iterations", "3", "--config", config_file, "--quiet",
+                                "--resume")
+    assert status == 0, stderr
+    metrics = json.loads((outdir / "metrics.json").read_text())
+    assert [epoch["epoch"] for epoch in metrics["static"]] == [1, 2, 3]
+    assert [epoch["epoch"] for epoch in metrics["dynamic"]["1"]] == [1, 2, 3]
+    settings = json.loads((outdir / "result.json").read_text())["settings"]
+    assert settings["config"]["iterations"] == 3
+    assert settings["config"]["dynamic"]["iterations"] == 3
+    # fewer epochs than the run holds: refused, and said why
+    status, _, stderr = fit(two_frame_capture, outdir, config_file, *stages, "--resume")
+    assert status == EXIT_USER_ERROR and stderr.count("\n") == 1, stderr
+    assert "config.iterations (--iterations): 3 (first run) vs 1 (now)" in stderr
+    assert "can add epochs, not remove them" in stderr

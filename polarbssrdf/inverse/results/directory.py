@@ -117,6 +117,13 @@ def write_result(outdir, manifest):
     atomic_write_text(Path(outdir) / RESULT_FILE, text, overwrite=True)
 
 
+def record_settings(outdir, settings) -> None:
+    """Replace the run settings in ``result.json`` (a resume that raised the epoch counts)."""
+    manifest = read_result(outdir)
+    manifest.settings = settings
+    write_result(outdir, manifest)
+
+
 def register_map(outdir, stage, frame, channels):
     """Add (or replace) the record of ``stage``/``frame`` in ``result.json``."""
     manifest = read_result(outdir)
