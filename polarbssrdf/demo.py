@@ -35,7 +35,7 @@ from polarbssrdf.errors import EXIT_USER_ERROR, USER_ERRORS, CommandError, run_c
 from polarbssrdf.inverse.commands import integer_at_least
 from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.resources import check_memory
-from polarbssrdf.inverse.results.directory import TIMINGS_FILE
+from polarbssrdf.inverse.results.directory import STAGES, TIMINGS_FILE
 from polarbssrdf.io.atomic import atomic_write_text
 from polarbssrdf.report import commands as report_commands
 from polarbssrdf.synth import commands as synth_commands
@@ -233,6 +233,16 @@ def _reconstruct_step(settings, capture_dir, result_dir, resume, workers, schedu
             print(f"polarbssrdf reconstruct: frame {frame} failed: {reason}", file=sys.stderr)
         raise CommandError(f"'polarbssrdf reconstruct' failed ({len(result.failed)} frame(s); "
                            f"their messages are above); {RERUN_ADVICE}")
+    return result
+
+
+def _earlier_seconds(outdir: Path) -> dict:
+    """``seconds`` of the demo's earlier ``metrics.json`` (empty when it has none)."""
+    try:
+        seconds = json.loads((outdir / "metrics.json").read_text()).get("seconds", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return seconds if isinstance(seconds, dict) else {}
 
 
 def headline_figures(evaluation) -> dict:
@@ -297,21 +307,35 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
     atomic_write_text(params, json.dumps(TRUTH_SETTINGS, indent=1) + "\n", overwrite=True)
     seconds = {}
     quiet_flag = ["--quiet"] if quiet else []
+    # a resume keeps the seconds of the run that did a step's work (metrics.json, written
+    # once reconstruct had finished): a step it finds done takes none
+    earlier = _earlier_seconds(outdir) if resume else {}
+    reused = []
 
     say(f"polarbssrdf demo: [1/4] a synthetic face capture: {settings.views} views, "
         f"{settings.frames} frames")
     started = time.perf_counter()
     synth_resume = resume and capture_dir.is_dir() and any(capture_dir.iterdir())
+    synth_done = synth_resume and (capture_dir / "capture.json").is_file()  # written last
     _run_step(synth_commands, synth_arguments(settings, capture_dir, params, synth_resume)
               + quiet_flag, say)
     seconds["synth"] = time.perf_counter() - started
+    if synth_done and "synth" in earlier:
+        seconds["synth"] = earlier["synth"]
+        reused.append("synth")
 
     say("polarbssrdf demo: [2/4] reconstruct: static, dynamic and biophysical stages")
     started = time.perf_counter()
     result_resume = resume and result_dir.is_dir() and any(result_dir.iterdir())
-    _reconstruct_step(settings, capture_dir, result_dir, result_resume, workers, scheduler,
-                      quiet, say)
+    result = _reconstruct_step(settings, capture_dir, result_dir, result_resume, workers,
+                               scheduler, quiet, say)
     seconds["reconstruct"] = time.perf_counter() - started
+    if set(result.reused) == set(STAGES) and "reconstruct" in earlier:
+        seconds["reconstruct"] = earlier["reconstruct"]
+        reused.append("reconstruct")
+    if reused:
+        say(f"polarbssrdf demo: reused the finished {' and '.join(reused)} of the earlier run; "
+            "metrics.json keeps that run's times")
     try:
         stage_seconds = json.loads((result_dir / TIMINGS_FILE).read_text())
     except (FileNotFoundError, ValueError):
@@ -326,7 +350,7 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
                "settings": asdict(settings), "holdout": [settings.holdout],
                "headline": headline_figures(evaluation),
                "seconds": {**{k: round(v, 2) for k, v in seconds.items()},
-                           "stages": stage_seconds},
+                           "stages": stage_seconds, "reused": reused},
                "evaluation": evaluation}
 
     atomic_write_text(outdir / "metrics.json", json.dumps(metrics, indent=1) + "\n",
@@ -404,6 +428,9 @@ def run(args) -> int:
     metrics = run_demo(args.outdir, settings, resume=args.resume, overwrite=args.overwrite,
                        workers=args.workers, scheduler=args.scheduler, quiet=args.quiet)
     print(f"polarbssrdf demo: {args.outdir} in {time.perf_counter() - started:.0f} s")
+    if metrics["seconds"].get("reused"):
+        print(f"  reused from the earlier run: {', '.join(metrics['seconds']['reused'])} "
+              "(metrics.json keeps its times)")
     for name, value in metrics["headline"].items():
         print(f"  {name}: {value}")
     print(f"  report: {metrics['report']}")

@@ -45,6 +45,7 @@ from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
 from polarbssrdf.inverse.resources import check_memory
 from polarbssrdf.inverse.polarimetric.static import run_static_stage
 from polarbssrdf.inverse.results.directory import (
+    METRICS_FILE,
     RESULT_FILE,
     STAGES,
     ResultDirectory,
@@ -84,16 +85,19 @@ class Reconstruction(ResultDirectory):
     readers (``.maps(stage, frame)``, ``.metrics``, ``.timings``), it has
     ``capture`` (the capture directory), ``texture`` (T), ``frame`` (the static
     frame), ``holdout``, ``seconds`` (wall time of the call), ``stage_lines``
-    (one line per stage that ran, as ``reconstruct`` prints them) and ``failed``
-    (``{frame: reason}`` of frames that did not finish; the others are written).
+    (one line per stage that ran, as ``reconstruct`` prints them), ``failed``
+    (``{frame: reason}`` of frames that did not finish; the others are written) and
+    ``reused`` (the stages a resume found finished: ``timings.json`` keeps their earlier
+    seconds).
     """
 
     def __init__(self, outdir, *, capture, texture, frame, holdout, seconds, stage_lines,
-                 failed):
+                 failed, reused=()):
         super().__init__(outdir)
         self.capture, self.texture, self.frame = capture, texture, frame
         self.holdout, self.seconds = list(holdout), seconds
         self.stage_lines, self.failed = list(stage_lines), dict(failed)
+        self.reused = list(reused)
 
     def summary(self, closing=None) -> str:
         """The lines ``reconstruct`` prints when it finishes; ``closing`` replaces the last one
@@ -468,7 +472,7 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
         prepare_result_directory(outdir, capture.directory, texture, settings, resume=resume,
                                  overwrite=overwrite, identity=capture_identity(capture, frame))
 
-    lines, failed = [], {}
+    lines, failed, reused = [], {}, []
     for number, stage in enumerate(stages, start=1):
         # one display across stages: each stage's header and bars carry "[i/n] stage"
         label = f"[{number}/{len(stages)}] {stage}"
@@ -477,6 +481,8 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                   flush=True)
         stage_start = time.perf_counter()
         if stage == "static":
+            if resume and _static_fit_done(outdir, frame, config.iterations):
+                reused.append(stage)
             result = run_static_stage(capture, outdir, config, texture, frame=frame,
                                       holdout=tuple(holdout), progress=progress, label=label)
             say_confidence(stage, {frame: result.confidence}, progress)
@@ -486,7 +492,7 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
             lines.append(f"  static: {result.path} ({len(result.maps)} channels, {epochs} "
                          f"epochs, {'?' if views is None else f'{views:,}'} texel-views"
                          + (f", final loss {final:.4g}" if final is not None else "")
-                         + f", {time.perf_counter() - stage_start:.1f} s)")
+                         + f", {_seconds_text(stage, reused, stage_start)})")
         elif stage == "dynamic":
             report = run_dynamic_stage(capture, outdir, texture, config, holdout=tuple(holdout),
                                        static_frame=frame, workers=workers, scheduler=scheduler,
@@ -494,27 +500,60 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                                        progress=progress,
                                        variant=variant, label=label)
             failed.update(report["failed"])
+            if report["skipped"] and not report["done"] and not report["failed"]:
+                reused.append(stage)
             say_confidence(stage, report["confidence"], progress)
             lines.append(f"  dynamic: {len(report['done'])} frame(s) fitted"
                          + (f", {len(report['skipped'])} already done" if report["skipped"] else "")
                          + (f", {len(report['failed'])} failed" if report["failed"] else "")
-                         + f" -> {outdir / 'dynamic'} ({time.perf_counter() - stage_start:.1f} s)")
+                         + f" -> {outdir / 'dynamic'} ({_seconds_text(stage, reused, stage_start)})")
         elif stage == "bio":
             # after more epochs its albedo maps changed: every frame is fitted again
+            bio_resume = (resume or continuing) and not extended
+            written = _bio_frames_written(outdir) if bio_resume else set()
             summary = run_bio_stage(capture, outdir, texture, config.bio,
-                                    resume=(resume or continuing) and not extended,
-                                    progress=progress,
+                                    resume=bio_resume, progress=progress,
                                     workers=workers, scheduler=scheduler, variant=variant,
                                     label=label)
             failed.update({f: f"bio: {reason}" for f, reason in summary["failed"].items()})
+            if summary["frames"] and set(summary["frames"]) <= written and not summary["failed"]:
+                reused.append(stage)
             kinds = sorted(set(summary["source_stages"].values()))
             lines.append(f"  bio: {len(summary['frames'])} frame(s) from the "
                          f"{' and '.join(kinds)} maps -> {outdir / 'bio'} (maps, previews, "
-                         f"summary.json; {time.perf_counter() - stage_start:.1f} s)")
-        record_stage_seconds(outdir, {stage: time.perf_counter() - stage_start})
+                         f"summary.json; {_seconds_text(stage, reused, stage_start)})")
+        if stage not in reused:  # timings.json keeps the seconds of the run that did the work
+            record_stage_seconds(outdir, {stage: time.perf_counter() - stage_start})
     return Reconstruction(outdir, capture=capture.directory, texture=texture, frame=frame,
                           holdout=holdout, seconds=time.perf_counter() - started,
-                          stage_lines=lines, failed=failed)
+                          stage_lines=lines, failed=failed, reused=reused)
+
+
+def _static_fit_done(outdir: Path, frame: int, iterations: int) -> bool:
+    """Whether an earlier run in ``outdir`` finished the static fit of ``frame`` to
+    ``iterations`` epochs (its maps registered, its loss history that long): a resume then
+    reuses it."""
+    try:
+        if read_result(outdir).record("static", frame) is None:
+            return False
+        history = json.loads((outdir / METRICS_FILE).read_text()).get("static", [])
+    except (OSError, ValueError):
+        return False
+    return isinstance(history, list) and len(history) >= iterations
+
+
+def _bio_frames_written(outdir: Path) -> set:
+    """Frames whose biophysical map file exists (a resume skips them)."""
+    return {int(path.stem.removeprefix("maps_f")) for path in (outdir / "bio").glob("maps_f*.exr")
+            if path.stem.removeprefix("maps_f").isdigit()}
+
+
+def _seconds_text(stage, reused, stage_start) -> str:
+    """``12.3 s``, or for a stage whose work an earlier run did, where its time is kept."""
+    seconds = f"{time.perf_counter() - stage_start:.1f} s"
+    if stage in reused:
+        return f"{seconds}; reused the earlier run's fit, whose time timings.json keeps"
+    return seconds
 
 
 def evaluate_inputs(outdir, truth=None, variant=DEFAULT_VARIANT, force=False):

@@ -298,7 +298,9 @@ def record_stage_seconds(outdir, seconds: dict) -> None:
     """Merge ``{stage: wall seconds}`` into ``OUTDIR/timings.json`` (atomically).
 
     The last run of a stage replaces its entry; a resumed stage records the
-    seconds of the resumed part only.
+    seconds of the resumed part only. A stage a resume finds finished is not
+    recorded (:func:`polarbssrdf.inverse.pipeline.reconstruct`): its entry stays
+    the run's that did the work.
     """
     path = Path(outdir) / TIMINGS_FILE
     try:
