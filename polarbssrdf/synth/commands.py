@@ -148,6 +148,62 @@ def describe_differences(differences) -> str:
     return "; ".join(describe(name, old, new) for name, (old, new) in named.items())
 
 
+def new_directory(outdir: Path) -> str | None:
+    """``"absent"`` or ``"empty"`` when ``outdir`` holds nothing yet (a failed run may then
+    remove what it wrote), None otherwise."""
+    if not outdir.exists():
+        return "absent"
+    if outdir.is_dir() and not any(outdir.iterdir()):
+        return "empty"
+    return None
+
+
+def settings_error(error: BaseException) -> bool:
+    """Whether ``error`` says the settings cannot be rendered (a plugin or the skin model
+    refused a value), as opposed to an interrupt or a failing disk (which --resume fixes)."""
+    from polarbssrdf.errors import caused_by_interrupt, is_plugin_error
+
+    if caused_by_interrupt(error):
+        return False
+    return isinstance(error, ValueError) or is_plugin_error(error)
+
+
+def remove_new_capture(outdir: Path, state: str) -> None:
+    """Remove what a failed run wrote into ``outdir``, which was ``state`` ("absent" or
+    "empty") before it: nothing else can be there."""
+    import shutil
+
+    if state == "absent":
+        shutil.rmtree(outdir, ignore_errors=True)
+        return
+    for path in outdir.iterdir():
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
+SKIN_MODEL_KEYS = {
+    "C_m + C_h_out": "biophysical / biophysical_std C_m and C_h_out (with features and the "
+                     "hemoglobin_swing over frames)",
+}
+"""The settings behind the skin model's refusals of drawn maps, by the refusal's text."""
+
+
+def settings_error_message(error: ValueError, params: Path | None) -> str:
+    """One line naming the settings file (or the built-in settings) and, for the skin
+    model's refusals of drawn maps, the keys that drew them."""
+    text = str(error)
+    source = f"{params}" if params else "the built-in truth settings"
+    if params and text.startswith(f"{params}:"):
+        return text
+    keys = next((keys for marker, keys in SKIN_MODEL_KEYS.items() if marker in text), None)
+    if keys is None:
+        return f"{source}: {text}"
+    return (f"{source}: the drawn truth maps break the skin model ({text}) at some texels: "
+            f"lower the bases or spreads of {keys}")
+
+
 def run(args) -> int:
     import mitsuba as mi
 
@@ -155,7 +211,7 @@ def run(args) -> int:
     from polarbssrdf.io.capture import PlanMismatchError
     from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
     from polarbssrdf.spectral import read_bands, shipped_default_bands
-    from polarbssrdf.synth.truth import load_settings
+    from polarbssrdf.synth.checks import load_checked_settings
 
     check_variant(args.variant, mi.variants())
     mi.set_variant(args.variant)
@@ -165,9 +221,10 @@ def run(args) -> int:
                                  seed=args.seed, raw=args.raw,
                                  interreflection=args.interreflection,
                                  subsurface_diffusion=args.subsurface_diffusion)
-    truth_settings = load_settings(args.params) if args.params else None
+    truth_settings = load_checked_settings(args.params) if args.params else None
     bands = read_bands(args.bands) if args.bands else shipped_default_bands()
     start = time.perf_counter()
+    fresh = new_directory(args.outdir)
     try:
         manifest = synthesize(args.outdir, settings, bands=bands, truth_settings=truth_settings,
                               overwrite=args.overwrite, resume=args.resume,
@@ -183,6 +240,14 @@ def run(args) -> int:
         reason = str(error).split(";")[0]
         raise CommandError(f"{reason}: use --overwrite to start over in it, or --resume to "
                            "continue an interrupted run") from error
+    except Exception as error:
+        if fresh is not None and settings_error(error):
+            # nothing a corrected rerun could resume (it needs other settings): leave the
+            # directory as it was, so the rerun is not refused as "not empty"
+            remove_new_capture(args.outdir, fresh)
+            if isinstance(error, ValueError):
+                raise CommandError(settings_error_message(error, args.params)) from None
+        raise
     print(f"wrote {manifest} ({args.views} views x {args.frames} frames) in "
           f"{time.perf_counter() - start:.1f} s")
     return 0

@@ -103,3 +103,46 @@ def test_bad_params_file(tmp_path, capsys):
     params.write_text("{not json")
     assert main(["synth", str(tmp_path / "z"), "--params", str(params), *SMALL]) == 2
     assert "not valid JSON" in capsys.readouterr().err
+
+
+TINY = ["--object", "sphere", "--views", "2", "--resolution", "32", "--texture", "16", "--spp",
+        "1", "--quiet"]
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"reflectance": {"rho_s": [2, 0.1, 0, 3]}},
+     "reflectance.rho_s: base 2 is outside [0, 1], the range the pbssrdf plugin accepts"),
+    ({"reflectance": {"alpha_s": [0, 0, 0, 0.1]}},
+     "reflectance.alpha_s: base 0 is outside (0, 1], the range the pbssrdf plugin accepts"),
+    ({"reflectance": {"eta": [0.8, 0, 0.5, 1]}},
+     "reflectance.eta: base 0.8 is outside (1, inf), the range the pbssrdf plugin accepts"),
+    ({"reflectance": {"alpha_ss": [0.5, 0.01, 0.4, 1.2]}}, "reflectance.alpha_ss: high 1.2"),
+    ({"reflectance": {"eta": "1.4"}},
+     'reflectance.eta: expected a list of four numbers [base, std, low, high], got a string'),
+    ({"reflectance": {"eta": [1.42, -0.01, 1.3, 1.6]}},
+     "reflectance.eta: the std (second number) must be >= 0, got -0.01"),
+    ({"biophysical": {"C_h_in": [0.05, -0.01, 0, 0.2]}},
+     "biophysical.C_h_in: the std (second number) must be >= 0"),
+    ({"biophysical_std": {"C_m": 2}}, "biophysical_std.C_m: must be in [0, 0.5]"),
+    # a spread a fraction can have, whose drawn maps still break C_m + C_h_out <= 1
+    ({"biophysical_std": {"C_m": 0.5}}, "C_m + C_h_out"),
+])
+def test_params_the_renderer_would_refuse_fail_before_leaving_anything(tmp_path, params,
+                                                                       message):
+    """Issue 32, item 8: these failed inside Mitsuba (or the skin model) naming neither file
+    nor key, and left capture.plan.json and mesh.obj, so the corrected rerun was refused."""
+    import json
+
+    from helpers import run_cli
+
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps(params))
+    outdir = tmp_path / "capture"
+    status, _, stderr = run_cli("synth", outdir, "--params", path, *TINY)
+    assert status == 2, stderr
+    assert stderr.count("\n") == 1 and f"{path}: " in stderr and message in stderr
+    assert "['1', '.', '4']" not in stderr and "base 1.42" not in stderr
+    assert not outdir.exists()
+    outdir.mkdir()  # an empty directory the user made stays, and stays empty
+    assert run_cli("synth", outdir, "--params", path, *TINY)[0] == 2
+    assert outdir.is_dir() and not any(outdir.iterdir())
