@@ -25,7 +25,8 @@ def check_bio_settings(settings) -> None:
     try:
         bio_config(settings)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"config: bio: {error}") from None
+        # the stage's own message may start with "config: " too: say it once
+        raise ValueError(f"config: bio: {str(error).removeprefix('config: ')}") from None
 
 
 def static_config(overrides=None, **changes) -> StaticConfig:

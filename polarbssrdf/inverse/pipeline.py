@@ -357,8 +357,10 @@ def say_confidence(stage, summaries, progress=True) -> None:
         return
     fractions = [100 * s["confident_fraction"] for s in summaries.values()]
     if progress:
-        share = (f"{fractions[0]:.1f}%" if len(fractions) == 1 else
-                 f"{min(fractions):.1f}-{max(fractions):.1f}% (over {len(fractions)} frames)")
+        low, high = f"{min(fractions):.1f}", f"{max(fractions):.1f}"
+        share = (f"{high}%" if len(fractions) == 1 else
+                 f"{high}% (every one of {len(fractions)} frames)" if low == high else
+                 f"{low}-{high}% (over {len(fractions)} frames)")
         print(f"polarbssrdf reconstruct: {stage}: {share} of the surface is confident "
               "(metrics.json: confidence)", file=sys.stderr, flush=True)
     for frame, summary in sorted(summaries.items(), key=lambda item: int(item[0])):

@@ -17,6 +17,8 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
+from polarbssrdf.errors import option
+
 __all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "temporary_path_for"]
 
 TEMP_SUFFIX = ".tmp"
@@ -49,7 +51,7 @@ def _check_destination(path: Path, overwrite: bool) -> None:
         raise IsADirectoryError(f"cannot write '{path}': it is a directory")
     if path.exists() and not overwrite:
         raise FileExistsError(f"'{path}' already exists; refusing to overwrite it "
-                              "(pass overwrite=True to replace it)")
+                              f"(pass {option('overwrite', True)} to replace it)")
 
 
 def _fsync_file(path: Path) -> None:
@@ -89,11 +91,11 @@ def _publish(temporary: Path, path: Path, overwrite: bool) -> None:
         os.link(temporary, path)
     except FileExistsError:
         raise FileExistsError(f"'{path}' already exists; refusing to overwrite it "
-                              "(pass overwrite=True to replace it)") from None
+                              f"(pass {option('overwrite', True)} to replace it)") from None
     except OSError:
         if path.exists():
             raise FileExistsError(f"'{path}' already exists; refusing to overwrite it "
-                                  "(pass overwrite=True to replace it)") from None
+                                  f"(pass {option('overwrite', True)} to replace it)") from None
         os.replace(temporary, path)
         return
     os.unlink(temporary)

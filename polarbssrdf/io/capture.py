@@ -98,6 +98,11 @@ def read_json(path: str | os.PathLike):
 
 
 # --------------------------------------------------------------------------- image checks
+def _article(word: str) -> str:
+    """``an`` before a vowel (``an analyser image``), else ``a`` (``a raw image``)."""
+    return "an" if word[:1].lower() in "aeiou" else "a"
+
+
 def check_image_channels(channels: Mapping[str, np.ndarray], expected: tuple[str, ...],
                          image_size: tuple[int, int], kind: str, what: str,
                          allow_nan: bool = False) -> None:
@@ -114,7 +119,7 @@ def check_image_channels(channels: Mapping[str, np.ndarray], expected: tuple[str
     if names != set(expected):
         missing = [name for name in expected if name not in names]
         unexpected = sorted(names - set(expected))
-        raise CaptureFormatError("", f"{what}: wrong channel set for a {kind} image: missing "
+        raise CaptureFormatError("", f"{what}: wrong channel set for {_article(kind)} {kind} image: missing "
                                      f"{missing or 'none'}, unexpected {unexpected or 'none'}")
     width, height = image_size
     maximum = 0.0

@@ -612,8 +612,9 @@ def describe_noise(noise: NoiseModel) -> str:
             f"{100 * rms.max():.2g}%)")
 
 
-def write_report(path, data: dict) -> None:
-    """Write the report JSON atomically (temporary file + rename)."""
+def write_report(path, data: dict, overwrite: bool = False) -> None:
+    """Write the report JSON atomically (temporary file + rename); an existing file only
+    with ``overwrite``."""
     from polarbssrdf.io.atomic import atomic_write_text
 
-    atomic_write_text(Path(path), json.dumps(data, indent=1) + "\n")
+    atomic_write_text(Path(path), json.dumps(data, indent=1) + "\n", overwrite=overwrite)

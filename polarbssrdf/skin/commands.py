@@ -62,6 +62,7 @@ def register(subparsers) -> None:
                        help="FWHM of the --centres filters, one or one per centre (nm, default 10)")
     _add_noise_options(bands, covariance=True)
     bands.add_argument("--out", metavar="FILE.json", help="write the report as JSON (atomically)")
+    bands.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     bands.set_defaults(run=run_bands)
 
     design = sub.add_parser(
@@ -87,6 +88,8 @@ def register(subparsers) -> None:
     design.add_argument("--out", metavar="FILE.json", help="write the design as JSON (atomically)")
     design.add_argument("--write-bands", metavar="FILE.json",
                         help="write the chosen bands as a band file (for synth --bands, skin bands --bands)")
+    design.add_argument("--overwrite", action="store_true",
+                        help="replace existing --out and --write-bands files")
     design.set_defaults(run=run_design)
 
 
@@ -201,7 +204,7 @@ def run_bands(args) -> int:
     pins = info.band_pins(bounds, args.thickness, args.gamma, _exit_fraction())
     sys.stdout.write(info.format_report(bounds, pins))
     if args.out:
-        info.write_report(args.out, info.report_json(bounds, pins))
+        info.write_report(args.out, info.report_json(bounds, pins), overwrite=args.overwrite)
         print(f"wrote {args.out}")
     return 0
 
@@ -245,12 +248,12 @@ def run_design(args) -> int:
     if args.write_bands:
         from polarbssrdf.io.atomic import atomic_write_text
 
-        atomic_write_text(args.write_bands, bands_to_json(chosen))
+        atomic_write_text(args.write_bands, bands_to_json(chosen), overwrite=args.overwrite)
         print(f"wrote {args.write_bands}")
     if args.out:
         data = {"schema": "polarbssrdf.band_design", "schema_version": 1, "criterion": args.criterion,
                 "criterion_meaning": info.CRITERIA[args.criterion], "design": design,
                 "chosen": info.report_json(bounds, pins), "default_bands": info.report_json(default)}
-        info.write_report(args.out, data)
+        info.write_report(args.out, data, overwrite=args.overwrite)
         print(f"wrote {args.out}")
     return 0

@@ -44,3 +44,17 @@ def test_truth_of_another_size_or_without_the_frame_is_named():
 def test_an_unreadable_capture_leaves_the_report():
     line = closing_line("out", 0, ["cam03"], 32, None)
     assert line.endswith("see them with 'polarbssrdf report out'") and "evaluate" not in line
+
+
+def test_the_confident_share_over_frames_is_not_a_range_of_one_value(capsys):
+    """Issue 32, item 14: equal shares printed "98.5-98.5%"."""
+    from polarbssrdf.inverse.pipeline import say_confidence
+
+    def share(fraction):
+        return {"confident_fraction": fraction, "confident_texels": 985,
+                "surface_texels": 1000}
+
+    say_confidence("dynamic", {1: share(0.985), 2: share(0.9851)})
+    assert "98.5% (every one of 2 frames)" in capsys.readouterr().err
+    say_confidence("dynamic", {1: share(0.97), 2: share(0.985)})
+    assert "97.0-98.5% (over 2 frames)" in capsys.readouterr().err

@@ -129,3 +129,15 @@ def test_reconstruct_refuses_a_string_flag_before_any_work(sphere_capture_dir, t
     assert stderr == (f"polarbssrdf reconstruct: error: {config}: config: coaxial must be true "
                       'or false (a JSON boolean), got a string ("false")\n')
     assert not outdir.exists()
+
+
+def test_an_unknown_bio_key_says_config_once(tmp_path):
+    """Issue 32, item 14: the message read "config: bio: config: unknown bio key(s)"."""
+    from polarbssrdf.inverse.config import load_static_config
+
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps({"bio": {"foo": 1}}))
+    with pytest.raises(ValueError) as error:
+        load_static_config(path)
+    assert "config: bio: unknown bio key(s) ['foo']" in str(error.value)
+    assert str(error.value).count("config:") == 1

@@ -314,7 +314,7 @@ def test_wrong_channel_set(written):
     channels["BA.I45x"] = channels.pop("BA.I45")
     _replace_image(directory, path, channels)
     load_capture(directory, check_images=False)  # contents are only read when asked for
-    with pytest.raises(ValueError, match=r"cam00_light00\.exr'.*wrong channel set for a analyser "
+    with pytest.raises(ValueError, match=r"cam00_light00\.exr'.*wrong channel set for an analyser "
                                          r"image: missing \['BA\.I45'\], unexpected \['BA\.I45x'\]"):
         load_capture(directory)
 

@@ -267,3 +267,24 @@ def test_bad_covariance_files_are_named(tmp_path, capsys, content, message):
     assert main(["skin", "bands", "--covariance", str(path)]) == 2
     err = capsys.readouterr().err
     assert message in err and "cov.json" in err
+
+
+def test_an_existing_out_file_is_refused_naming_the_flag_that_replaces_it(tmp_path):
+    """Issue 32, item 14: 'skin bands --out EXISTING' said "pass overwrite=True", which no
+    command-line option does."""
+    from helpers import run_cli
+
+    out = tmp_path / "report.json"
+    out.write_text("{}")
+    status, _, stderr = run_cli("skin", "bands", "--out", out)
+    assert status == 2 and stderr.count("\n") == 1
+    assert "pass --overwrite to replace it" in stderr and "overwrite=True" not in stderr
+    assert out.read_text() == "{}"
+    status, _, stderr = run_cli("skin", "bands", "--out", out, "--overwrite")
+    assert status == 0, stderr
+    assert json.loads(out.read_text())["schema"] == "polarbssrdf.band_report"
+    # from Python the same refusal names the parameter
+    from polarbssrdf.io.atomic import atomic_write_text
+
+    with pytest.raises(FileExistsError, match=r"pass overwrite=True to replace it"):
+        atomic_write_text(out, "x")

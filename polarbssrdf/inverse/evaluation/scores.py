@@ -334,7 +334,7 @@ def evaluate_result(outdir, capture=None, frame=0, stage="static", *, holdout=Tr
         return _evaluate_biophysical(outdir, capture, frame, maps, truth, manifest, atlas)
     truth_size = capture.truth.texture_size
     if manifest.texture_size != truth_size:
-        raise ValueError(f"texture size mismatch: the result {outdir} is {manifest.texture_size} x "
+        raise ValueError(f"texture size mismatch: the result in '{outdir}' is {manifest.texture_size} x "
                          f"{manifest.texture_size}, the truth of '{capture.directory}' is "
                          f"{truth_size} x {truth_size}; evaluate a run made with --texture "
                          f"{truth_size}")
