@@ -37,16 +37,13 @@ from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.resources import check_memory
 from polarbssrdf.inverse.results.directory import STAGES, TIMINGS_FILE
 from polarbssrdf.io.atomic import atomic_write_text
+from polarbssrdf.io.demo_layout import DEMO_ENTRIES, DEMO_FILE
 from polarbssrdf.report import commands as report_commands
 from polarbssrdf.synth import commands as synth_commands
 
-DEMO_FILE = "demo.json"
 DEMO_SCHEMA = "polarbssrdf.demo"
 METRICS_SCHEMA = "polarbssrdf.demo_metrics"
 SCHEMA_VERSION = 1
-DEMO_ENTRIES = ("capture", "result", "report.html", "metrics.json", DEMO_FILE,
-                "truth_settings.json")
-"""What the demo writes in OUTDIR; ``--overwrite`` removes only these."""
 
 TRUTH_SETTINGS = {"reflectance": {"eta": [1.50, 0.04, 1.3, 1.6],
                                   "alpha_s": [0.38, 0.05, 0.1, 0.7]}}

@@ -13,6 +13,7 @@ from polarbssrdf.inverse.results.directory import (
     read_result,
 )
 from polarbssrdf.io import load_capture
+from polarbssrdf.io.demo_layout import DEMO_ENTRIES
 from polarbssrdf.variants import DEFAULT_VARIANT, select_variant
 
 
@@ -51,7 +52,6 @@ def run_report(args) -> int:
     outdir = args.outdir
     result_dir, evaluation, title, protected = outdir, None, None, ()
     if not (outdir / "result.json").is_file() and (outdir / "result" / "result.json").is_file():
-        from polarbssrdf.demo import DEMO_ENTRIES  # deferred: the demo imports this module
 
         result_dir = outdir / "result"  # a demo directory
         # the demo's own files, but not its report.html (this command's output)
