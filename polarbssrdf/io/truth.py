@@ -44,7 +44,7 @@ TRUTH_SCHEMA_VERSION = 1
 DEFAULT_TRUTH_UNITS = {
     "eta": "1", "alpha_s": "1", "alpha_ss": "1", "rho_s": "1", "rho_ss": "1",
     "displacement": "mm", "C_m": "1", "beta_m": "1", "C_h_out": "1", "C_h_in": "1",
-    "gamma": "1", "rho_sss": "1",
+    "gamma": "1", "thickness_mm": "mm", "rho_sss": "1",
 }
 """Units of the paper's parameters (``"1"``: dimensionless; fractions and albedos in [0, 1])."""
 

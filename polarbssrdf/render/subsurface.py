@@ -139,73 +139,110 @@ LAYER_PROFILES = ("R_out_f", "T_out_f", "R_out_b", "T_out_b", "R_in")
 _DELTA_VARIANCE_MM2 = 1e-8  # a Gaussian far below any texel: the identity
 
 
-def layer_totals_maps(maps, bands, thickness_mm=None):
-    """Per band, the five layer totals (eq. 42) at every texel, from the biophysical maps.
+def layer_totals_maps(maps, spectral):
+    """Per quadrature node, the five layer totals (eq. 42) at every texel, from the biophysical maps.
 
     Parameters
     ----------
     maps : dict
-        (T, T) maps ``C_m, beta_m, C_h_out, C_h_in`` and ``eta``.
-    bands : list of Band
-        Band-effective optical coefficients per band (see :mod:`polarbssrdf.skin.model`).
+        (T, T) maps ``C_m, beta_m, C_h_out, C_h_in`` and ``eta``; optional ``gamma``
+        (the blood's oxygen fraction) and ``thickness_mm`` (the epidermis, mm) maps,
+        else the model's defaults (0.75, 0.25 mm).
+    spectral : SpectralQuadrature or list of Band
+        The nodes (:func:`polarbssrdf.skin.quadrature.as_quadrature`: bands get the band
+        integral's quadrature).
 
     Returns
     -------
-    list of ``LayerTotals`` with (T, T) fields, one per band.
+    list of ``LayerTotals`` with (T, T) fields, one per node.
     """
     from polarbssrdf.skin.layers import absorption_from_basis
-    from polarbssrdf.skin.model import band_chromophore_basis
-    from polarbssrdf.skin.model import DEFAULT_THICKNESS_MM
+    from polarbssrdf.skin.model import DEFAULT_GAMMA, DEFAULT_THICKNESS_MM
+    from polarbssrdf.skin.quadrature import as_quadrature
     from polarbssrdf.skin.twolayer import layer_totals
 
-    basis = band_chromophore_basis(bands)
-    sigma_a_out, sigma_a_in = absorption_from_basis(basis, maps["C_m"], maps["beta_m"],
-                                                    maps["C_h_out"], maps["C_h_in"])
-    thickness = DEFAULT_THICKNESS_MM if thickness_mm is None else thickness_mm
-    return [layer_totals(sigma_a_out[..., b], basis["scattering_epidermis"][b],
-                         sigma_a_in[..., b], basis["scattering_dermis"][b], thickness, maps["eta"])
-            for b in range(len(bands))]
+    basis = as_quadrature(spectral).basis
+    gamma = maps.get("gamma", DEFAULT_GAMMA)
+    thickness = maps.get("thickness_mm", DEFAULT_THICKNESS_MM)
+    sigma_a_out, sigma_a_in = absorption_from_basis(basis, maps["C_m"], maps["beta_m"], maps["C_h_out"],
+                                                    maps["C_h_in"], gamma)
+    return [layer_totals(sigma_a_out[..., q], basis["scattering_epidermis"][q],
+                         sigma_a_in[..., q], basis["scattering_dermis"][q], thickness, maps["eta"])
+            for q in range(sigma_a_out.shape[-1])]
 
 
-def layer_profile_kernels(bands, skin):
-    """Per band, ``name -> (weights, variances mm^2)``: normalized SoG of each layer profile (eq. 43).
+def layer_profile_kernels(spectral, skin):
+    """Per quadrature node, ``name -> (weights, variances mm^2)``: normalized SoG of each layer
+    profile (eq. 43) at that node's coefficients.
 
-    Fitted at the base parameters ``skin`` (``SkinParameters``), since the
-    blur is taken as spatially homogeneous (eq. 45). The unscattered part of
-    the epidermis transmittance, a delta at r = 0, enters as an identity term
-    weighted by its share of the total.
+    Fitted at the base parameters ``skin`` (``SkinParameters``, its ``gamma``,
+    ``thickness_mm`` and ``eta`` included), since the blur is taken as spatially
+    homogeneous (eq. 45). The unscattered part of the epidermis transmittance, a delta
+    at r = 0, enters as an identity term weighted by its share of the total.
+    ``spectral``: a SpectralQuadrature or bands (their band integral's quadrature).
     """
     from polarbssrdf.skin.layers import absorption_from_basis
-    from polarbssrdf.skin.model import band_chromophore_basis
     from polarbssrdf.skin.multipole import ballistic_totals, slab_profiles
+    from polarbssrdf.skin.quadrature import as_quadrature
     from polarbssrdf.skin.sog import fit_sog, variance_ladder
     from polarbssrdf.skin.twolayer import radial_energy
 
-    basis = band_chromophore_basis(bands)
-    sa_out, sa_in = absorption_from_basis(basis, skin.C_m, skin.beta_m, skin.C_h_out, skin.C_h_in)
+    basis = as_quadrature(spectral).basis
+    sa_out, sa_in = absorption_from_basis(basis, skin.C_m, skin.beta_m, skin.C_h_out, skin.C_h_in, skin.gamma)
     r = np.concatenate([[0.0], np.geomspace(1e-4, 30.0, 300)])
     ladder = variance_ladder()
     kernels = []
-    for b in range(len(bands)):
-        ss_out, ss_in = basis["scattering_epidermis"][b], basis["scattering_dermis"][b]
+    for q in range(np.shape(sa_out)[-1]):
+        ss_out, ss_in = basis["scattering_epidermis"][q], basis["scattering_dermis"][q]
         d, eta = skin.thickness_mm, skin.eta
-        R_f, T_f = slab_profiles(r, sa_out[b], ss_out, d, eta, 1.0)
-        R_b, T_b = slab_profiles(r, sa_out[b], ss_out, d, 1.0, eta, incidence="diffuse")
-        R_in, _ = slab_profiles(r, sa_in[b], ss_in, np.inf, 1.0, 1.0)
-        _, T_f_ball = ballistic_totals(sa_out[b], ss_out, d, eta, 1.0)
-        _, T_b_ball = ballistic_totals(sa_out[b], ss_out, d, 1.0, eta, incidence="diffuse")
+        R_f, T_f = slab_profiles(r, sa_out[q], ss_out, d, eta, 1.0)
+        R_b, T_b = slab_profiles(r, sa_out[q], ss_out, d, 1.0, eta, incidence="diffuse")
+        R_in, _ = slab_profiles(r, sa_in[q], ss_in, np.inf, 1.0, 1.0)
+        _, T_f_ball = ballistic_totals(sa_out[q], ss_out, d, eta, 1.0)
+        _, T_b_ball = ballistic_totals(sa_out[q], ss_out, d, 1.0, eta, incidence="diffuse")
         profiles = {"R_out_f": (R_f, 0.0), "T_out_f": (T_f, T_f_ball), "R_out_b": (R_b, 0.0),
                     "T_out_b": (T_b, T_b_ball), "R_in": (R_in, 0.0)}
-        band_kernels = {}
+        node_kernels = {}
         for name, (profile, ballistic) in profiles.items():
             weights = np.clip(fit_sog(r, profile, ladder), 0.0, None)
             diffuse = radial_energy(r, profile)
             share = float(ballistic) / max(float(ballistic) + diffuse, 1e-30)
             weights = (1.0 - share) * weights / max(weights.sum(), 1e-30)
-            band_kernels[name] = (np.concatenate([[share], weights]),
+            node_kernels[name] = (np.concatenate([[share], weights]),
                                   np.concatenate([[_DELTA_VARIANCE_MM2], ladder]))
-        kernels.append(band_kernels)
+        kernels.append(node_kernels)
     return kernels
+
+
+def band_exitances(irradiance, totals, kernels, weights, atlas, tolerance=1e-4):
+    """Per band, the exitance below the surface (eq. 46) integrated over the band: ``M_b = sum_q
+    w_bq M_q`` with ``M_q`` the :func:`layered_exitance` of quadrature node ``q`` (its own
+    layer totals and profiles; the diffusion depends on wavelength as the reflectance does).
+
+    ``totals``, ``kernels``: per node (:func:`layer_totals_maps`, :func:`layer_profile_kernels`);
+    ``weights``: the quadrature's (n_bands, Q). Each node is diffused once, whatever the
+    bands that share it. NumPy or Dr.Jit inputs as :func:`layered_exitance` takes them."""
+    weights = np.asarray(weights, dtype=np.float64)
+    used = np.flatnonzero(np.any(weights > 0, axis=0))
+    nodes = {q: layered_exitance(irradiance, totals[q], kernels[q], atlas, tolerance) for q in used}
+
+    def scaled(value, weight):
+        if isinstance(value, np.ndarray):
+            return value.astype(np.float64) * weight
+        import drjit as dr
+
+        # the weights follow the bands: kernel inputs, not literals
+        return type(value)(value.array * dr.opaque(type(value.array), weight), value.shape)
+
+    out = []
+    for row in weights:
+        total = None
+        for q in used:
+            if row[q] > 0:
+                term = scaled(nodes[q], float(row[q]))
+                total = term if total is None else total + term
+        out.append(total.astype(np.float32) if isinstance(total, np.ndarray) else total)
+    return out
 
 
 def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_interreflections=16):

@@ -2,7 +2,7 @@
 and a search for band sets (or comb-filter pairs) that lower them.
 
 The biophysical stage fits the lobe albedo of each band, ``rho_b = R_bar_b(theta) / c(eta)``
-(eq. 47 with the band-effective chromophore basis, :func:`~.model.band_reflectance`;
+(eq. 47 integrated over each band by its spectral quadrature, :func:`~.model.band_reflectance`;
 docs/biophysical.md), to ``theta = (C_m, beta_m, C_h_out, C_h_in)`` with eta, gamma and
 the epidermis thickness held. For an albedo error of band covariance ``S`` (Gaussian), the
 Fisher information of one texel is
@@ -213,8 +213,8 @@ def albedo_jacobian(C_m, beta_m, C_h_out, C_h_in, bands, eta, thickness_mm=DEFAU
                     gamma=DEFAULT_GAMMA, exit_fraction=None, step=JACOBIAN_STEP):
     """Per-band albedo (..., n) and its Jacobian (..., n, 4) in (C_m, beta_m, C_h_out, C_h_in).
 
-    ``rho_b = R_bar_b / c(eta)`` with ``R_bar_b`` :func:`~.model.band_reflectance` (band-effective,
-    the model of synth and of the biophysical fit) and ``c = exit_fraction(eta)`` (pass
+    ``rho_b = R_bar_b / c(eta)`` with ``R_bar_b`` :func:`~.model.band_reflectance` (the band
+    integral by the bands' spectral quadrature, the model of synth and of the biophysical fit) and ``c = exit_fraction(eta)`` (pass
     :func:`polarbssrdf.render.subsurface.subsurface_exit_fraction` for the lobe albedo of
     eq. 19; ``None`` gives the model's flux ``R_bar``, the same up to a per-texel factor, which
     relative noise does not see). Central differences of step ``step``; a parameter closer than
@@ -381,7 +381,8 @@ def band_bounds(bands, noise, rows=None, prior=None, thickness_mm=DEFAULT_THICKN
 def band_pins(bounds: BandBounds, thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAULT_GAMMA, exit_fraction=None):
     """(n_bands, R, 4) ratio of each chromophore's bound without band ``b`` to the bound with all
     bands (inf where removing the band makes it unidentifiable): the band "pins" the chromophore
-    whose bound grows most without it."""
+    whose bound grows most without it. (``thickness_mm``, ``gamma``, ``exit_fraction``: those of
+    ``bounds``, whose Jacobian is reused; kept for the callers.)"""
     out = []
     for b in range(len(bounds.bands)):
         keep = [i for i in range(len(bounds.bands)) if i != b]
@@ -394,10 +395,13 @@ def band_pins(bounds: BandBounds, thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAU
             order = [names.index(bounds.bands[i].name) for i in keep]
             noise = dataclasses.replace(noise, matrix=noise.matrix[np.ix_(order, order)],
                                         band_names=tuple(names[i] for i in order))
-        fewer = band_bounds([bounds.bands[i] for i in keep], noise, bounds.rows, bounds.prior, thickness_mm,
-                            gamma, exit_fraction)
+        # the same model's rows without band b (a subset's own quadrature would be another
+        # model, up to its 0.05% error, and could seem to gain from a band's removal)
+        albedo, jacobian = bounds.albedo[:, keep], bounds.jacobian[:, keep]
+        information = fisher_information(jacobian, noise.for_bands([bounds.bands[i] for i in keep]).covariance(albedo))
+        _, std, _ = bound_from_information(information, table2_scale(), prior_spreads(bounds.prior, bounds.rows))
         with np.errstate(invalid="ignore"):
-            out.append(fewer.std / bounds.std)
+            out.append(std / bounds.std)
     return np.stack(out)
 
 

@@ -2,9 +2,13 @@
 
 For every frame, view and band: the face's maps give ``pbssrdf``'s glossy
 parameters and, through the two-layer skin model, per-texel layer totals
-(eq. 42) whose combination is the band's subsurface albedo (eq. 47); the
-coaxial light's transmitted irradiance is diffused in texture space through
-the layers' sum-of-Gaussians profiles (eq. 46) and rendered by
+(eq. 42) at each wavelength of the bands' spectral quadrature
+(:mod:`polarbssrdf.skin.quadrature`); the coaxial light's transmitted
+irradiance is diffused in texture space through each wavelength's layer
+profiles (sums of Gaussians, eq. 46) and the band's image is the
+quadrature's weighted sum over its wavelengths, the band integral a camera
+behind the filter records (the truth albedo ``rho_sss`` is the band integral
+of eq. 47's reflectance the same way). The result is rendered by
 ``pexitance``, which the camera sees directly (glossy lobes reflect it only
 with ``interreflection``); the camera records I0/I45/I90/I135 (or, with
 ``raw``, the noisy 12-bit mosaic of a polarization sensor). The geometry is
@@ -36,12 +40,13 @@ from polarbssrdf.geometry import displace, face_mesh, texel_atlas, to_mitsuba, u
 from polarbssrdf.geometry.face import face_region_masks
 from polarbssrdf.render.lightstage import ring_light_stage
 from polarbssrdf.render.subsurface import (
+    band_exitances,
     emitted_exitance,
     layer_profile_kernels,
     layer_totals_maps,
-    layered_exitance,
     transmitted_irradiance,
 )
+from polarbssrdf.skin.quadrature import SPECTRAL_METHODS, spectral_quadrature
 from polarbssrdf.render.view import render_analyser_images, set_exitance, view_scene
 from polarbssrdf.synth.truth import TruthSettings, frame_maps, truth_maps
 
@@ -97,11 +102,19 @@ class SynthesisSettings:
         Diffuse each view's transmitted irradiance in texture space through the
         layers' profiles (eq. 46; the default, as skin does). ``False`` leaves the
         subsurface light where it entered: the exitance of each texel is
-        ``R_bar E / c(eta)`` (:func:`subsurface_exitance`), exactly the per-texel
+        ``R_bar E / c(eta)`` (:func:`subsurface_exitances`), exactly the per-texel
         subsurface model of the polarimetric stages (``rho_sss E``), so a capture
         made so isolates what the blur costs the inverse chain. Recorded in
         ``capture.json`` only when ``False`` (captures made before it existed
         resume).
+    spectral : str
+        How a band's image is formed from the spectrum: ``"integral"`` (default) is
+        what a camera behind the band's filter records, the band integral of the
+        diffused spectral light by the quadrature of
+        :func:`~polarbssrdf.skin.quadrature.band_integral_quadrature` (within 0.2% of
+        the 1 nm integral); ``"effective"`` renders each band once with its
+        band-averaged coefficients, the band-effective approximation (10-19% off in
+        some bands: for measuring what the approximation costs, never for scoring).
     """
 
     object: str = "face"
@@ -114,8 +127,11 @@ class SynthesisSettings:
     raw: bool = False
     interreflection: bool = False
     subsurface_diffusion: bool = True
+    spectral: str = "integral"
 
     def __post_init__(self):
+        if self.spectral not in SPECTRAL_METHODS:
+            raise ValueError(f"spectral must be one of {SPECTRAL_METHODS}, got {self.spectral!r}")
         if self.object not in OBJECTS:
             raise ValueError(f"object must be one of {OBJECTS}, got {self.object!r}")
         for name in ("views", "frames", "resolution", "texture", "spp"):
@@ -132,36 +148,44 @@ def object_mesh(name):
     return face_mesh(1) if name == "face" else uv_sphere(60.0, rings=96, segments=192)
 
 
-def subsurface_albedo(maps, bands):
+def subsurface_albedo(maps, bands, spectral="integral"):
     """(n_bands, T, T) subsurface lobe albedo ``rho_sss = R_bar / c(eta)`` per band.
 
-    ``R_bar`` is the total diffuse reflectance of the two-layer skin (eq. 47),
-    the flux that leaves the skin; ``c(eta)`` the share of a lobe albedo that
-    the eq. 19 lobe (``rho_sss T+(theta_o) / pi``) emits
+    ``R_bar`` is the band integral of the total diffuse reflectance of the two-layer
+    skin (eq. 47, at each texel's chromophores, oxygenation ``gamma`` and epidermal
+    ``thickness_mm`` where the maps hold them), the flux that leaves the skin;
+    ``c(eta)`` the share of a lobe albedo that the eq. 19 lobe
+    (``rho_sss T+(theta_o) / pi``) emits
     (:func:`~polarbssrdf.render.subsurface.subsurface_exit_fraction`), so a lobe
-    with this albedo emits ``R_bar E`` (see docs/biophysical.md)."""
+    with this albedo emits ``R_bar E`` (see docs/biophysical.md). ``spectral``: a
+    quadrature, or its method (:func:`~polarbssrdf.skin.quadrature.spectral_quadrature`)."""
     from polarbssrdf.render.subsurface import subsurface_exit_fraction
-    from polarbssrdf.skin.model import band_reflectance
+    from polarbssrdf.skin.model import DEFAULT_GAMMA, DEFAULT_THICKNESS_MM
+    from polarbssrdf.skin.quadrature import as_quadrature, quadrature_reflectance
 
-    reflectance = band_reflectance(maps["C_m"], maps["beta_m"], maps["C_h_out"], maps["C_h_in"],
-                                   bands, eta=maps["eta"])
+    quadrature = spectral_quadrature(bands, spectral) if isinstance(spectral, str) else as_quadrature(spectral)
+    reflectance = quadrature_reflectance(quadrature, maps["C_m"], maps["beta_m"], maps["C_h_out"], maps["C_h_in"],
+                                         maps.get("gamma", DEFAULT_GAMMA),
+                                         maps.get("thickness_mm", DEFAULT_THICKNESS_MM), maps["eta"])
     reflectance = reflectance / subsurface_exit_fraction(maps["eta"])[..., None]
     return np.moveaxis(np.asarray(reflectance, dtype=np.float32), -1, 0)
 
 
-def subsurface_exitance(irradiance, state, kernels, band_index, diffusion=True):
-    """The ``pexitance`` map of one band (W/mm^2 for ``irradiance`` in W/mm^2): the
-    layered exitance (eq. 46, the flux ``R_bar E`` after diffusion) divided by
-    ``c(eta)``, so that the emitted flux is the multipole's
-    (:func:`~polarbssrdf.render.subsurface.emitted_exitance`).
+def subsurface_exitances(irradiance, state, prepared, diffusion=True):
+    """The ``pexitance`` map of every band (W/mm^2 for ``irradiance`` in W/mm^2): the
+    band integral of the layered exitance (eq. 46, the flux ``R_bar E`` after diffusion,
+    per quadrature node with that wavelength's profiles,
+    :func:`~polarbssrdf.render.subsurface.band_exitances`) divided by ``c(eta)``, so that
+    the emitted flux is the multipole's (:func:`~polarbssrdf.render.subsurface.emitted_exitance`).
 
     Without ``diffusion`` nothing is blurred: ``R_bar E / c(eta) = rho_sss E`` per
     texel (``state.albedo``, eq. 47), the per-texel model of the inverse stages."""
     if not diffusion:
-        albedo = np.asarray(state.albedo[band_index], dtype=np.float64)
-        return (albedo * np.asarray(irradiance, dtype=np.float64)).astype(np.float32)
-    exitance = layered_exitance(irradiance, state.layers[band_index], kernels[band_index], state.atlas)
-    return emitted_exitance(exitance, state.maps["eta"])
+        irradiance = np.asarray(irradiance, dtype=np.float64)
+        return [(np.asarray(albedo, dtype=np.float64) * irradiance).astype(np.float32) for albedo in state.albedo]
+    exitances = band_exitances(irradiance, state.layers, prepared.kernels, prepared.quadrature.weights,
+                               state.atlas)
+    return [emitted_exitance(exitance, state.maps["eta"]) for exitance in exitances]
 
 
 @dataclasses.dataclass
@@ -173,9 +197,10 @@ class PreparedCapture:
     stage: object
     base_mesh: object
     static_maps: dict
-    kernels: list
+    kernels: list  # per quadrature node
     truth_settings: TruthSettings
     flush_region: np.ndarray | None
+    quadrature: object  # SpectralQuadrature of the bands
 
     def maps(self, frame):
         return frame_maps(self.static_maps, frame, self.settings.frames, self.truth_settings,
@@ -183,10 +208,11 @@ class PreparedCapture:
 
 
 def prepare_capture(settings, bands, truth_settings=None):
-    """Rig, geometry, static truth maps and per-band blur kernels of a synthetic capture.
+    """Rig, geometry, static truth maps, the bands' spectral quadrature and its blur kernels.
 
     The kernels are the layer profiles of the maps' base skin (the Table 2 row, or its
-    bases moved by ``truth_settings.biophysical``)."""
+    bases moved by ``truth_settings.biophysical``, with the thickness and oxygenation
+    bases) at each quadrature node."""
     truth_settings = truth_settings or TruthSettings()
     base = object_mesh(settings.object)
     distance = 600.0 if settings.object == "face" else 450.0
@@ -200,9 +226,10 @@ def prepare_capture(settings, bands, truth_settings=None):
         masks = face_region_masks(settings.texture)
         flush = gaussian_filter(masks["cheeks"].astype(np.float64), 4.0)
         flush /= max(flush.max(), 1e-12)
-    kernels = layer_profile_kernels(bands, truth_settings.skin_parameters())
+    quadrature = spectral_quadrature(bands, settings.spectral)
+    kernels = layer_profile_kernels(quadrature, truth_settings.skin_parameters())
     return PreparedCapture(settings, list(bands), stage, base, static, kernels, truth_settings,
-                           flush)
+                           flush, quadrature)
 
 
 @dataclasses.dataclass
@@ -213,8 +240,8 @@ class FrameState:
     maps: dict
     mesh: object
     atlas: object
-    albedo: np.ndarray  # (n_bands, T, T), lobe albedo R_bar / c(eta) (eq. 47)
-    layers: list  # per band, LayerTotals of (T, T) maps
+    albedo: np.ndarray  # (n_bands, T, T), lobe albedo R_bar / c(eta) (eq. 47), band-integrated
+    layers: list  # per quadrature node, LayerTotals of (T, T) maps
 
 
 def prepare_frame(prepared, frame):
@@ -222,8 +249,8 @@ def prepare_frame(prepared, frame):
     maps = prepared.maps(frame)
     mesh = displace(prepared.base_mesh, maps["displacement"])
     atlas = texel_atlas(to_mitsuba(mesh), prepared.settings.texture)
-    return FrameState(frame, maps, mesh, atlas, subsurface_albedo(maps, prepared.bands),
-                      layer_totals_maps(maps, prepared.bands))
+    return FrameState(frame, maps, mesh, atlas, subsurface_albedo(maps, prepared.bands, prepared.quadrature),
+                      layer_totals_maps(maps, prepared.quadrature))
 
 
 def render_frame_view(prepared, state, camera, rng=None):
@@ -241,9 +268,9 @@ def render_frame_view(prepared, state, camera, rng=None):
     camera_index = [c.name for c in prepared.stage.cameras].index(camera.name)
     channels, channel_names = {}, None
     noise = raw_sensor(prepared.stage, camera.name) if settings.raw else None
+    exitances = subsurface_exitances(irradiance, state, prepared, settings.subsurface_diffusion)
     for band_index, band in enumerate(prepared.bands):
-        set_exitance(scene, subsurface_exitance(irradiance, state, prepared.kernels, band_index,
-                                                settings.subsurface_diffusion))
+        set_exitance(scene, exitances[band_index])
         # a distinct, reproducible sample pattern per image
         seed = image_seed(settings.seed, state.index, camera_index, band_index)
         images, channel_names = render_analyser_images(scene, settings.spp, seed, channel_names)

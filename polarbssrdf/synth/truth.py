@@ -32,7 +32,19 @@ DEFAULT_REFLECTANCE = {
 }
 BIOPHYSICAL = ("C_m", "beta_m", "C_h_out", "C_h_in")
 DEFAULT_BIOPHYSICAL_STD = {"C_m": 0.004, "beta_m": 0.01, "C_h_out": 0.01, "C_h_in": 0.008}
-MAP_NAMES = tuple(DEFAULT_REFLECTANCE) + BIOPHYSICAL
+DEFAULT_SKIN_LAYERS = {
+    # the epidermis of the Donner & Jensen 2006 two-layer model; high-frequency ultrasound of
+    # 118 faces gives 0.17-0.22 mm per site with a between-subject SD of 0.02-0.03 mm
+    # (Ji et al., BMC Medical Imaging 22:113, 2022, Table 2); OCT and histology give thinner
+    # epidermis (0.03-0.07 mm), so the thickness is a model parameter, not a measurement
+    "thickness_mm": (0.25, 0.025, 0.10, 0.40),
+    # the oxygen fraction of cutaneous blood: 0.75 in Donner et al. 2008 and Jacques' 2013
+    # review (Phys. Med. Biol. 58 R37); arterial 0.95-0.98, venous 0.6-0.75
+    "gamma": (0.75, 0.03, 0.50, 0.95),
+}
+"""``name -> (base, std, low, high)`` of the skin's other unknowns (mm; fraction), drawn as maps."""
+SKIN_LAYERS = tuple(DEFAULT_SKIN_LAYERS)
+MAP_NAMES = tuple(DEFAULT_REFLECTANCE) + BIOPHYSICAL + SKIN_LAYERS
 BIOPHYSICAL_LIMITS = (0.0, 1.0)
 """Default ``[low, high]`` of a biophysical map: volume fractions."""
 
@@ -75,6 +87,11 @@ class TruthSettings:
         Localized features applied after the random fields, in order: each
         multiplies one biophysical map inside smooth-edged disks on the
         surface (keys in :data:`FEATURE_KEYS`; :func:`feature_weight`).
+    skin_layers : dict
+        ``name -> (base, std, low, high)`` of the epidermal thickness (``thickness_mm``,
+        mm) and the blood's oxygen fraction (``gamma``) maps; defaults
+        :data:`DEFAULT_SKIN_LAYERS` (cited there). Drawn after the features, so settings
+        that leave them at their defaults keep the other maps.
     """
 
     reflectance: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_REFLECTANCE))
@@ -84,6 +101,7 @@ class TruthSettings:
     hemoglobin_swing: float = 0.3
     biophysical: dict = dataclasses.field(default_factory=dict)
     features: list = dataclasses.field(default_factory=list)
+    skin_layers: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_SKIN_LAYERS))
 
     def __post_init__(self):
         if tuple(self.skin) not in TABLE2:
@@ -112,6 +130,18 @@ class TruthSettings:
                                  f"got [{base}, {std}, {low}, {high}]")
         for index, feature in enumerate(self.features):
             check_feature(feature, f"features[{index}]")
+        for name, value in self.skin_layers.items():
+            if name not in DEFAULT_SKIN_LAYERS:
+                raise ValueError(f"unknown skin layer map {name!r}; known: {list(SKIN_LAYERS)}")
+            if len(value) != 4 or not all(_is_number(x) for x in value):
+                raise ValueError(f"skin_layers {name}: expected [base, std, low, high], got {list(value)}")
+            base, std, low, high = value
+            limit_low, limit_high = (0.02, 1.0) if name == "thickness_mm" else (0.0, 1.0)
+            if std < 0:
+                raise ValueError(f"skin_layers {name}: std must be >= 0, got {std}")
+            if not (limit_low <= low <= base <= high <= limit_high):
+                raise ValueError(f"skin_layers {name}: need {limit_low} <= low <= base <= high <= {limit_high}, "
+                                 f"got [{base}, {std}, {low}, {high}]")
         if self.correlation_mm <= 0:
             raise ValueError("correlation_mm must be > 0")
 
@@ -126,7 +156,12 @@ class TruthSettings:
         """The Table 2 row's :class:`~polarbssrdf.skin.SkinParameters` with the maps' bases:
         the skin whose layer profiles synth blurs with (the row itself by default)."""
         bases = {name: value[0] for name, value in self.biophysical_maps().items()}
+        bases.update({name: value[0] for name, value in self.layer_maps().items()})
         return dataclasses.replace(TABLE2[tuple(self.skin)], **bases)
+
+    def layer_maps(self):
+        """``name -> (base, std, low, high)`` of the thickness and oxygenation maps as they are drawn."""
+        return {name: tuple(self.skin_layers.get(name, DEFAULT_SKIN_LAYERS[name])) for name in SKIN_LAYERS}
 
 
 def _is_number(value):
@@ -180,7 +215,7 @@ def load_settings(path):
     unknown = set(data) - {f.name for f in dataclasses.fields(TruthSettings)}
     if unknown:
         raise ValueError(f"{path}: unknown settings {sorted(unknown)}")
-    for key in ("reflectance", "biophysical_std", "biophysical"):
+    for key in ("reflectance", "biophysical_std", "biophysical", "skin_layers"):
         if key in data and not isinstance(data[key], dict):
             raise ValueError(f"{path}: {key} must be an object of maps")
     if "reflectance" in data:
@@ -200,6 +235,12 @@ def load_settings(path):
     if "biophysical" in data:
         data["biophysical"] = {k: tuple(v) if isinstance(v, list) else v
                                for k, v in data["biophysical"].items()}
+    if "skin_layers" in data:
+        unknown = set(data["skin_layers"]) - set(SKIN_LAYERS)
+        if unknown:
+            raise ValueError(f"{path}: unknown skin layer maps {sorted(unknown)}; known: {list(SKIN_LAYERS)}")
+        data["skin_layers"] = {**DEFAULT_SKIN_LAYERS, **{k: tuple(v) if isinstance(v, list) else v
+                                                        for k, v in data["skin_layers"].items()}}
     if "features" in data and not isinstance(data["features"], list):
         raise ValueError(f"{path}: features must be a list of objects")
     if "skin" in data:
@@ -302,6 +343,9 @@ def truth_maps(atlas, settings, rng):
         _, _, low, high = limits[name]
         changed = np.clip(maps[name] * (1.0 + (feature["factor"] - 1.0) * weight), low, high)
         maps[name] = np.where(atlas.valid, changed, maps[name])
+    for name, (base, std, low, high) in settings.layer_maps().items():
+        field = np.clip(base + std * smooth_field(shape, correlation, rng), low, high)
+        maps[name] = np.where(atlas.valid, field, base)
     return {name: value.astype(np.float32) for name, value in maps.items()}
 
 

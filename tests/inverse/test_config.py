@@ -95,15 +95,15 @@ def test_the_dynamic_object(tmp_path, dynamic, key, kind):
     ({"iterations": True}, "iterations", "a boolean (true)"),
     ({"iterations": 12.0}, "iterations", "a number (12.0)"),
     ({"rounds": "3"}, "rounds", 'a string ("3")'),
-    ({"method": 3}, "method", "an integer (3)"),
+    ({"spectral": 3}, "spectral", "an integer (3)"),
     ({"tolerance": True}, "tolerance", "a boolean (true)"),
     ({"thickness_mm": "0.25"}, "thickness_mm", 'a string ("0.25")'),
     ({"eta": None}, "eta", "null"),
-    ({"final_lr_fraction": "0.05"}, "final_lr_fraction", 'a string ("0.05")'),
-    ({"learning_rates": {"C_m": "fast"}}, "learning_rates.C_m", 'a string ("fast")'),
+    ({"albedo_noise": "0.05"}, "albedo_noise", 'a string ("0.05")'),
+    ({"nuisance_std": {"eta": "fast"}}, "nuisance_std.eta", 'a string ("fast")'),
     ({"bounds": {"C_m": ["0", "0.5"]}}, "bounds.C_m", 'a string ("0")'),
-    ({"smoothness": "300"}, "smoothness", 'a string ("300")'),
-    ({"smoothness": {"C_m": True}}, "smoothness.C_m", "a boolean (true)"),
+    ({"prior_std": "300"}, "prior_std", 'a string ("300")'),
+    ({"prior_std": {"C_m": True}}, "prior_std.C_m", "a boolean (true)"),
 ])
 def test_the_bio_object(tmp_path, bio, key, kind):
     _refused(tmp_path, {"bio": bio}, f"config: bio: {key} ", kind)

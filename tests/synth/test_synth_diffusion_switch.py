@@ -25,7 +25,7 @@ from polarbssrdf.synth.synthesize import (
     capture_manifest,
     prepare_capture,
     prepare_frame,
-    subsurface_exitance,
+    subsurface_exitances,
 )
 
 DELTA = {name: (np.array([1.0]), np.array([1e-10])) for name in LAYER_PROFILES}
@@ -56,9 +56,13 @@ def test_without_diffusion_each_texel_emits_R_bar_E_over_c_eta(face):
     irradiance = step_irradiance(state.atlas)
     c_eta = subsurface_exit_fraction(state.maps["eta"])
     valid = state.atlas.valid
+    locals_ = subsurface_exitances(irradiance, state, prepared, diffusion=False)
+    weights = prepared.quadrature.weights
     for band in range(len(prepared.bands)):
-        local = subsurface_exitance(irradiance, state, prepared.kernels, band, diffusion=False)
-        R_bar_E = layered_exitance(irradiance, state.layers[band], DELTA, state.atlas)
+        local = locals_[band]
+        # the band integral of the unblurred layered exitance over the quadrature's nodes
+        R_bar_E = sum(weights[band, q] * layered_exitance(irradiance, state.layers[q], DELTA, state.atlas)
+                      for q in range(weights.shape[1]) if weights[band, q] > 0)
         expected = R_bar_E / c_eta
         assert np.all(expected[valid & (irradiance > 0)] > 0)
         np.testing.assert_allclose(local[valid], expected[valid], rtol=2e-5, atol=1e-9)

@@ -14,6 +14,8 @@ from scipy.ndimage import gaussian_filter
 from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD, table2_spread_across_rows
 from polarbssrdf.synth.truth import (
     BIOPHYSICAL,
+    DEFAULT_SKIN_LAYERS,
+    SKIN_LAYERS,
     TruthSettings,
     disk_weight,
     feature_weight,
@@ -61,8 +63,9 @@ def test_settings_without_bases_or_features_draw_the_maps_they_drew_before(spher
     settings = TruthSettings(skin=skin)
     ours = truth_maps(sphere, settings, np.random.default_rng(3))
     before = old_truth_maps(sphere, settings, np.random.default_rng(3))
-    assert set(ours) == set(before)
-    for name in ours:
+    # the skin's layer maps are new, drawn after everything else
+    assert set(ours) == set(before) | set(SKIN_LAYERS)
+    for name in before:
         np.testing.assert_array_equal(ours[name], before[name], err_msg=name)
     # the row given explicitly as [base, std, 0, 1] is the same settings
     row = TABLE2[skin]
@@ -169,7 +172,7 @@ def test_freckles_raise_melanin_severalfold_in_disks_of_their_size(sphere):
     plain = truth_maps(sphere, TruthSettings(), np.random.default_rng(9))
     spotted = truth_maps(sphere, TruthSettings(features=[freckles]), np.random.default_rng(9))
     for name in plain:
-        if name != "C_m":
+        if name != "C_m" and name not in SKIN_LAYERS:  # those are drawn after the features' centres
             np.testing.assert_array_equal(spotted[name], plain[name], err_msg=name)
     ratio = np.where(sphere.valid, spotted["C_m"] / plain["C_m"], 1.0)
     assert ratio.max() == pytest.approx(factor, rel=0.05)
@@ -244,7 +247,10 @@ def test_the_record_of_default_settings_is_unchanged_and_features_are_recorded()
     from polarbssrdf.synth.synthesize import truth_settings_json
 
     record = truth_settings_json(TruthSettings())
-    assert set(record) == {"reflectance", "skin", "biophysical_std", "correlation_mm", "hemoglobin_swing"}
+    # as before, and the skin's layer maps (issue 31)
+    assert set(record) == {"reflectance", "skin", "biophysical_std", "correlation_mm", "hemoglobin_swing",
+                           "skin_layers"}
+    assert record["skin_layers"] == {k: list(v) for k, v in DEFAULT_SKIN_LAYERS.items()}
     spotted = TruthSettings(features=[{"map": "C_m", "factor": 3, "diameter_mm": 2, "count": 4}],
                             biophysical={"C_m": (0.06, 0.005, 0.0, 0.5)})
     record = truth_settings_json(spotted)
@@ -252,7 +258,8 @@ def test_the_record_of_default_settings_is_unchanged_and_features_are_recorded()
     # what is recorded loads back as the same settings
     again = TruthSettings(**{**record, "skin": tuple(record["skin"]),
                              "biophysical": {k: tuple(v) for k, v in record["biophysical"].items()},
-                             "reflectance": {k: tuple(v) for k, v in record["reflectance"].items()}})
+                             "reflectance": {k: tuple(v) for k, v in record["reflectance"].items()},
+                             "skin_layers": {k: tuple(v) for k, v in record["skin_layers"].items()}})
     assert dataclasses.asdict(again) == dataclasses.asdict(spotted)
 
 

@@ -20,13 +20,13 @@ from polarbssrdf.io.jsonfile import (
     json_type,
 )
 from polarbssrdf.skin.inversion import BOUNDS as INVERSION_BOUNDS
+from polarbssrdf.skin.quadrature import DESIGN_BOX, SPECTRAL_METHODS
 
-LEARNING_RATES = {"C_m": 3e-4, "beta_m": 3e-3, "C_h_out": 3e-4, "C_h_in": 2e-4}
-"""Adam's first step size per map (fractions per step), decayed to ``final_lr_fraction`` of it."""
-
-
-METHODS = ("gauss_newton", "adam")
-"""Step (c)'s optimizers (:attr:`BiophysicalConfig.method`)."""
+NUISANCES = ("thickness_mm", "gamma", "eta")
+"""The skin's other unknowns: epidermal thickness (mm), the blood's oxygen fraction and the
+refractive index. The fit holds them (at ``thickness_mm``, ``gamma`` and the input index
+map) and marginalizes them in the chromophores' std: their face values by
+``nuisance_mean``'s std, their variation within the face by ``nuisance_std``."""
 
 PRIORS = ("matern", "none")
 """The maps' priors (:attr:`BiophysicalConfig.prior`)."""
@@ -37,6 +37,16 @@ NOISE_MODELS = ("fit", "fixed")
 STD_NOISE_MODELS = ("correlated", "projected", "white")
 """How the reported std treats the noise between texels (:attr:`BiophysicalConfig.std_noise`)."""
 
+DEFAULT_NUISANCE_STD = {"thickness_mm": 0.01, "gamma": 0.02, "eta": 0.015}
+"""Within-face spread of the nuisance maps: thickness (mm) as the spread of the facial sites'
+means in high-frequency ultrasound (0.17-0.22 mm over eight sites, Ji et al., BMC Medical
+Imaging 22:113, 2022), oxygenation a stated guess (regions at rest differ by a few percent),
+the index as the static stage's typical error (demo: MAE 0.013)."""
+
+DEFAULT_NUISANCE_MEAN = {"thickness_mm": [0.25, 0.05], "gamma": [0.75, 0.08]}
+"""``[mean, std]`` of a face's thickness (mm) and oxygenation: the skin model's values (Donner
+and Jensen 2006; Donner et al. 2008) with the spread between people and sites."""
+
 
 @dataclasses.dataclass
 class BiophysicalConfig:
@@ -44,207 +54,130 @@ class BiophysicalConfig:
 
     Attributes
     ----------
-    method : {"gauss_newton", "adam"}
-        Step (c)'s optimizer. ``"gauss_newton"`` (default): damped
-        Gauss-Newton (Levenberg-Marquardt) steps with the exact gradient of
-        the loss (Dr.Jit reverse mode through the blur) and, per texel, the
-        4 x 4 curvature of the unblurred model (Dr.Jit forward mode); a step
-        that does not lower the loss is retried with more damping.
-        ``"adam"``: ``drjit.opt.Adam`` with ``learning_rates``. The four
-        parameters are strongly correlated per texel (melanin and hemoglobin
-        both absorb in the blue), which a diagonal optimizer crosses slowly:
-        Adam needs hundreds of steps where Gauss-Newton needs about ten
-        (docs/biophysical.md).
     iterations : int
-        Steps per round of (c) (Gauss-Newton: at most this many accepted or
-        rejected trials; it stops earlier once a step lowers the loss by less
-        than ``tolerance`` of it).
+        Gauss-Newton steps per round at most (a step that does not lower the loss is
+        retried with more damping); a round stops earlier once a step lowers the loss by
+        less than ``tolerance`` of it.
     tolerance : float
-        Relative loss decrease below which Gauss-Newton stops.
+        Relative loss decrease below which a round's Gauss-Newton steps stop.
     rounds : int
-        Maximum rounds of (b)-(c); the fit stops earlier once the kernels change
-        by less than ``kernel_tolerance`` (largest absolute change of a
-        normalized SoG weight).
-    learning_rates : dict
-        First step size per map; decayed geometrically to ``final_lr_fraction``.
+        Rounds at most of the outer loop (kernels, the face's thickness and oxygenation,
+        noise and spreads refreshed between rounds); it stops earlier once the kernels
+        change by less than ``kernel_tolerance`` and no noise estimate, spread nor face
+        value moves by more than 5% (of itself; of its std for the face values).
+    kernel_tolerance : float
+        Largest absolute change of a normalized SoG weight counted as settled.
     prior : {"matern", "none"}
-        ``"matern"`` (default): each chromophore map is a Matérn field around a
-        face mean with spread ``prior_std`` and correlation length
-        ``correlation_mm``, the face mean a Gaussian around ``prior_mean``
-        (:mod:`polarbssrdf.inverse.biophysical.prior`); the posterior standard
-        deviation of every map is written beside it. ``"none"``: the data term
-        and ``smoothness`` only (the fit before issue 20; its std channels then
-        hold the data term's own, per texel).
+        ``"matern"`` (default): each chromophore map is a Matérn field around a face mean
+        with spread ``prior_std`` and correlation length ``correlation_mm``, the face means
+        Gaussian around ``prior_mean`` (:mod:`polarbssrdf.inverse.biophysical.prior`); the
+        posterior standard deviation of every map is written beside it. ``"none"``: the data
+        term only (its std channels then hold the data term's own, per texel, and no
+        nuisance is marginalized).
     prior_std : dict
-        ``name -> std`` of a chromophore within one face (volume fractions);
-        default the mean of Table 2's within-region "(std)" over its rows. The
-        start, when ``spread`` is ``"fit"``.
+        ``name -> std`` of a chromophore within one face (volume fractions); default
+        the mean of Table 2's within-region "(std)" over its rows. The start, when
+        ``spread`` is ``"fit"``.
     spread : {"fit", "fixed"}
         ``"fit"`` (default): after every round each chromophore's spread is
-        re-estimated from its posterior (expectation-maximization), so a face
-        that varies more than Table 2's regions is not flattened; where the
-        bands cannot tell a map, its spread stays about where it started.
-        ``"fixed"`` keeps ``prior_std``.
+        re-estimated from its posterior (expectation-maximization), so a face that
+        varies more than Table 2's regions is not flattened and one that varies less is
+        not roughened; where the bands cannot tell a map, its spread stays about where
+        it started and the map stays near its face mean. ``"fixed"`` keeps ``prior_std``.
     prior_mean : dict
-        ``name -> [mean, std]`` of the face mean's hyperprior; default the mean
-        and spread of Table 2's eight rows. A std of 0 holds the face mean there.
+        ``name -> [mean, std]`` of the chromophores' face means' hyperprior; default the
+        mean and spread of Table 2's eight rows.
     correlation_mm : float or "fit"
-        Correlation length of the Matérn fields (mm). ``"fit"`` (default):
-        estimated from the input albedo's covariance between texels two and
-        more texels apart (:func:`~polarbssrdf.inverse.biophysical.correlation.albedo_correlation_length`;
-        the result's metadata ``correlation_length`` gives it). On synthetic faces
-        whose fields are Gaussian-filtered over 8 mm it finds 6.4-6.7 mm at 128^2,
-        7.8-8.2 mm at 256^2 and 11.3 mm at 512^2 (the Gaussian's shape is not a
-        Matérn's); on the demo's capture 8.4 mm. A number fixes it (the fit before 2026-12-02 used 5).
+        Correlation length of the Matérn fields (mm). ``"fit"`` (default): estimated
+        from the input albedo's covariance between texels two and more texels apart
+        (:func:`~polarbssrdf.inverse.biophysical.correlation.albedo_correlation_length`).
     prior_order : {1, 2}
-        The Matérn fields' ``alpha`` (:class:`~polarbssrdf.inverse.biophysical.prior.SpatialPrior`):
-        2 (default) is smooth at the texel scale and pools the data of a few
-        correlation lengths; 1 is rougher and pools over a few texels only.
-    face_means : {"blocks", "joint"}
-        How each chromophore's face mean is found. ``"blocks"`` (default): the
-        albedo is averaged over blocks of ``mean_block_mm`` and inverted per
-        block (eq. 47), the blocks' mean combined with the ``prior_mean``
-        hyperprior and held during the fit (:func:`~polarbssrdf.inverse.biophysical.fit.block_face_means`).
-        ``"joint"``: the means are fitted with the maps; noise turned into bias
-        along the melanin-eumelanin ridge that way (bench/RESULTS.md).
-    hold_uninformed : bool
-        Hold a chromophore at its face mean when the bands tell less about it
-        than the prior does, even pooled over one correlation area
-        (:func:`~polarbssrdf.inverse.biophysical.fit.prior_dominated_maps`;
-        default ``true``); its std is then the prior spread.
-    mean_block_mm : float
-        Block size (mm) of ``face_means: "blocks"``.
-    gain_std : float
-        Spread of ``albedo_gain``, a band-common multiplicative error of the
-        input albedo fitted as a nuisance map (Matérn, mean 1, the same
-        correlation length); 0 (default) leaves it out. With six bands a gain
-        is nearly confounded with melanin and blood together: on the demo face
-        the fitted gain spread to 0.72-1.11 (5-95%) with the errors of C_m,
-        C_h_out and C_h_in 0.94, 0.91 and 0.81 correlated with it, and on
-        synthetic faces it doubled C_m's error (bench/RESULTS.md, 2026-12-02);
-        the band-common part of the error is modelled as noise
-        (``common_noise``) instead.
+        The Matérn fields' ``alpha``: 2 (default) is smooth at the texel scale.
+    nuisance_std : dict
+        ``name -> std`` within a face of what the std marginalizes (:data:`NUISANCES`,
+        :data:`DEFAULT_NUISANCE_STD`): the thickness (mm) and oxygenation about their face
+        values, the index about the input map (an input ``eta_std`` map, the static stage's
+        posterior, replaces it by its median). 0 leaves a nuisance out of the std.
+    nuisance_mean : dict
+        ``name -> [mean, std]`` of the face's thickness (mm) and oxygenation
+        (:data:`DEFAULT_NUISANCE_MEAN`): the hyperprior of the face values.
     noise : {"fit", "fixed"}
-        ``"fit"`` (default): each band's own relative noise and the
-        band-common noise start at ``albedo_noise`` and ``common_noise`` and
-        are re-estimated after every round from the residuals (moments over the
-        degrees of freedom the posterior leaves), so the uncertainty is
-        calibrated on the data; ``"fixed"`` keeps the starts.
+        ``"fit"`` (default): each band's own relative noise and the band-common noise
+        start at ``albedo_noise`` and ``common_noise`` and are re-estimated after every
+        round from the residuals; ``"fixed"`` keeps the starts.
     std_noise : {"projected", "correlated", "white"}
-        ``"projected"`` (default): the ``<map>_std`` channels account for the
-        noise's correlation between neighbouring texels (offsets up to 3
-        texels) by a sandwich covariance
-        (:func:`~polarbssrdf.inverse.biophysical.prior.posterior_covariance`),
-        the correlation measured on the whitened residuals projected per texel
-        on the band directions no map can move
-        (:func:`~polarbssrdf.inverse.biophysical.fit.residual_correlation`): the
-        maps absorb the smooth part of the noise along their own directions, so
-        the plain residuals understate its correlation (on the demo 0.15 between
-        neighbours, where the albedo error's is 0.43). ``"correlated"``: the
-        plain residuals' correlation. ``"white"`` takes the noise as
-        independent between texels.
-    smoothness : float or dict
-        Weight of an extra smoothness penalty per map (one number for all, or
-        ``name -> weight``): the mean over neighbouring texel pairs of the
-        squared slope of the map, in bounds ranges per mm, against the data
-        term. 0 by default (the Matérn prior smooths); ``prior="none"`` with
-        ``smoothness=300`` is the fit before issue 20.
-    albedo_noise : float
-        Relative noise of the albedo maps per band, independent between bands (the
-        start when ``noise`` is ``"fit"``).
-    common_noise : float
-        Relative noise shared by every band of a texel (the start when ``noise``
-        is ``"fit"``; 0 with ``"fixed"`` leaves it out): an error of the albedo's
-        level, such as the static stage's refractive index error makes
-        (d ln albedo / d eta = -1.24, flat over bands), which the chromophores
-        would otherwise take for a change of colour.
+        How the ``<map>_std`` channels account for the noise's correlation between
+        neighbouring texels (:func:`~polarbssrdf.inverse.biophysical.uncertainty.residual_correlation`):
+        ``"projected"`` (default) measures it on the residuals projected on the band
+        directions no map can move, ``"correlated"`` on the plain residuals, ``"white"``
+        takes the noise as independent between texels.
+    albedo_noise, common_noise : float
+        Relative noise of the albedo per band, and shared by the bands of a texel (the
+        starts when ``noise`` is ``"fit"``).
     start_texel_mm : float
-        Block size (mm) of the start's per-texel inversion (a); 0 inverts at full resolution.
+        Block size (mm) of the start's per-texel inversion; 0 inverts at full resolution.
     bounds : dict
-        Physical box of each map (those of the per-texel inversion by default).
-    thickness_mm, eta : float
-        Epidermis thickness; refractive index where the input has no ``eta`` map.
+        Physical box of each chromophore map (those of the per-texel inversion by default).
+    thickness_mm, gamma, eta : float
+        The face's epidermal thickness (mm) and oxygenation the model is rendered at (their
+        uncertainty, ``nuisance_mean``'s std, enters the std); the index where the input
+        has no ``eta`` map.
+    spectral : {"integral", "effective"}
+        The model of a band value: ``"integral"`` (default) the band integral a camera
+        records, by the bands' spectral quadrature
+        (:func:`~polarbssrdf.skin.quadrature.band_integral_quadrature`); ``"effective"``
+        the band-effective approximation (one node per band), for measuring what it costs.
     """
 
-    method: str = "gauss_newton"
     iterations: int = 12
     tolerance: float = 1e-4
-    rounds: int = 3
+    rounds: int = 6
     kernel_tolerance: float = 0.02
-    learning_rates: dict = dataclasses.field(default_factory=lambda: dict(LEARNING_RATES))
-    final_lr_fraction: float = 0.05
     prior: str = "matern"
     prior_std: dict = dataclasses.field(default_factory=within_face_spread)
     prior_mean: dict = dataclasses.field(default_factory=lambda: {n: list(v) for n, v in population_prior().items()})
     correlation_mm: float | str = "fit"
     prior_order: int = 2
-    gain_std: float = 0.0
-    face_means: str = "blocks"
-    hold_uninformed: bool = True
-    mean_block_mm: float = 16.0
+    nuisance_std: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_NUISANCE_STD))
+    nuisance_mean: dict = dataclasses.field(default_factory=lambda: {k: list(v) for k, v in DEFAULT_NUISANCE_MEAN.items()})
     noise: str = "fit"
     std_noise: str = "projected"
     spread: str = "fit"
-    smoothness: object = 0.0
     albedo_noise: float = 0.01
     common_noise: float = 0.01
     start_texel_mm: float = 2.0
     bounds: dict = dataclasses.field(default_factory=lambda: dict(INVERSION_BOUNDS))
     thickness_mm: float = 0.25
+    gamma: float = 0.75
     eta: float = 1.4
+    spectral: str = "integral"
 
-    def smoothness_weights(self):
-        """``name -> weight`` of the smoothness prior (see ``smoothness``)."""
-        value = self.smoothness
-        weights = ({n: value for n in PARAMETERS} if not isinstance(value, dict)
-                   else {n: value.get(n, 0.0) for n in PARAMETERS})
-        if isinstance(value, dict):
-            unknown = sorted(set(value) - set(PARAMETERS))
-            if unknown:
-                raise ValueError(f"smoothness: unknown map(s) {unknown}; known: {list(PARAMETERS)}")
-        for name, weight in weights.items():
-            where = f"smoothness.{name}" if isinstance(value, dict) else "smoothness"
-            check_number(weight, where, minimum=0)
-        return {n: float(w) for n, w in weights.items()}
-
-    def _check_prior_tables(self):
-        for key in ("prior_std", "prior_mean"):
-            value = getattr(self, key)
-            if not isinstance(value, dict):
-                raise ValueError(f"{key} must be an object, got {json_type(value)}")
-            unknown = sorted(set(value) - set(PARAMETERS))
-            if unknown:
-                raise ValueError(f"{key}: unknown map(s) {unknown}; known: {list(PARAMETERS)}")
-        spread = within_face_spread()
-        hyper = population_prior()
-        for name, value in self.prior_std.items():
-            check_number(value, f"prior_std.{name}")
-            if not value > 0:
-                raise ValueError(f"prior_std.{name} must be > 0, got {value!r}")
-        for name, pair in self.prior_mean.items():
-            if not isinstance(pair, (list, tuple)) or len(pair) != 2:
-                raise ValueError(f"prior_mean.{name} must be [mean, std], got {json_type(pair)}")
-            check_number(pair[0], f"prior_mean.{name}[0]")
-            check_number(pair[1], f"prior_mean.{name}[1]", minimum=0)
-        self.prior_std = {**spread, **{k: float(v) for k, v in self.prior_std.items()}}
-        self.prior_mean = {**{k: list(v) for k, v in hyper.items()},
-                           **{k: [float(v[0]), float(v[1])] for k, v in self.prior_mean.items()}}
+    def _check_tables(self, key, names, pairs):
+        value = getattr(self, key)
+        if not isinstance(value, dict):
+            raise ValueError(f"{key} must be an object, got {json_type(value)}")
+        unknown = sorted(set(value) - set(names))
+        if unknown:
+            raise ValueError(f"{key}: unknown map(s) {unknown}; known: {list(names)}")
+        for name, entry in value.items():
+            if pairs:
+                if not isinstance(entry, (list, tuple)) or len(entry) != 2:
+                    raise ValueError(f"{key}.{name} must be [mean, std], got {json_type(entry)}")
+                check_number(entry[0], f"{key}.{name}[0]")
+                check_number(entry[1], f"{key}.{name}[1]", minimum=0)
+            else:
+                check_number(entry, f"{key}.{name}", minimum=0)
 
     def __post_init__(self):
         # JSON types first (errors name the key and the type found): a string or a
         # boolean where a number belongs would otherwise pass or fail far from here
         for name in ("iterations", "rounds"):
             check_integer(getattr(self, name), name, minimum=1 if name == "rounds" else 0)
-        check_string(self.method, "method", METHODS)
         check_string(self.prior, "prior", PRIORS)
         check_string(self.noise, "noise", NOISE_MODELS)
         check_string(self.spread, "spread", NOISE_MODELS)
         check_string(self.std_noise, "std_noise", STD_NOISE_MODELS)
-        check_string(self.face_means, "face_means", ("blocks", "joint"))
-        check_boolean(self.hold_uninformed, "hold_uninformed")
-        check_number(self.mean_block_mm, "mean_block_mm")
-        if not self.mean_block_mm > 0:
-            raise ValueError(f"mean_block_mm must be > 0 (mm), got {self.mean_block_mm!r}")
+        check_string(self.spectral, "spectral", SPECTRAL_METHODS)
         if self.correlation_mm != "fit":
             if isinstance(self.correlation_mm, str):
                 raise ValueError(f"correlation_mm must be \"fit\" or a length in mm, got {self.correlation_mm!r}")
@@ -254,11 +187,19 @@ class BiophysicalConfig:
         check_integer(self.prior_order, "prior_order", minimum=1)
         if self.prior_order > 2:
             raise ValueError(f"prior_order must be 1 or 2, got {self.prior_order!r}")
-        check_number(self.gain_std, "gain_std", minimum=0)
-        if not self.gain_std < 1:
-            raise ValueError(f"gain_std must be in [0, 1), got {self.gain_std!r}")
-        self._check_prior_tables()
-        self.smoothness_weights()  # validates
+        self._check_tables("prior_std", PARAMETERS, pairs=False)
+        for name, value in self.prior_std.items():
+            if not value > 0:
+                raise ValueError(f"prior_std.{name} must be > 0, got {value!r}")
+        self._check_tables("prior_mean", PARAMETERS, pairs=True)
+        self._check_tables("nuisance_std", NUISANCES, pairs=False)
+        self._check_tables("nuisance_mean", ("thickness_mm", "gamma"), pairs=True)
+        self.prior_std = {**within_face_spread(), **{k: float(v) for k, v in self.prior_std.items()}}
+        self.prior_mean = {**{k: list(v) for k, v in population_prior().items()},
+                           **{k: [float(v[0]), float(v[1])] for k, v in self.prior_mean.items()}}
+        self.nuisance_std = {**DEFAULT_NUISANCE_STD, **{k: float(v) for k, v in self.nuisance_std.items()}}
+        self.nuisance_mean = {**{k: list(v) for k, v in DEFAULT_NUISANCE_MEAN.items()},
+                              **{k: [float(v[0]), float(v[1])] for k, v in self.nuisance_mean.items()}}
         for name in ("kernel_tolerance", "albedo_noise", "start_texel_mm", "common_noise"):
             check_number(getattr(self, name), name, minimum=0)
         check_number(self.tolerance, "tolerance", minimum=0)
@@ -266,32 +207,25 @@ class BiophysicalConfig:
             raise ValueError(f"tolerance must be in [0, 1), got {self.tolerance!r}")
         if not self.albedo_noise > 0:
             raise ValueError("albedo_noise must be > 0")
-        check_number(self.final_lr_fraction, "final_lr_fraction", maximum=1)
-        if not 0 < self.final_lr_fraction:
-            raise ValueError("final_lr_fraction must be in (0, 1]")
-        for key in ("learning_rates", "bounds"):
-            if not isinstance(getattr(self, key), dict):
-                raise ValueError(f"{key} must be an object, got {json_type(getattr(self, key))}")
-        for name in set(self.learning_rates) | set(self.bounds):
-            if name not in PARAMETERS:
-                raise ValueError(f"unknown map {name!r}; known: {list(PARAMETERS)}")
-        for name, value in self.learning_rates.items():
-            check_number(value, f"learning_rates.{name}")
-            if not value > 0:
-                raise ValueError(f"learning rate of {name} must be > 0, got {value!r}")
+        if not isinstance(self.bounds, dict):
+            raise ValueError(f"bounds must be an object, got {json_type(self.bounds)}")
         for name, pair in self.bounds.items():
+            if name not in PARAMETERS:
+                raise ValueError(f"bounds: unknown map {name!r}; known: {list(PARAMETERS)}")
             if not isinstance(pair, (list, tuple)) or len(pair) != 2:
                 raise ValueError(f"bounds.{name} must be [low, high], got {json_type(pair)}")
             for value in pair:
                 check_number(value, f"bounds.{name}")
-        self.learning_rates = {**LEARNING_RATES, **self.learning_rates}
         self.bounds = {**INVERSION_BOUNDS, **{k: tuple(v) for k, v in self.bounds.items()}}
         for name, (low, high) in self.bounds.items():
             if not (0.0 <= low < high <= 1.0):
                 raise ValueError(f"bounds of {name} must satisfy 0 <= low < high <= 1, got {(low, high)}")
-        check_number(self.thickness_mm, "thickness_mm")
-        if not self.thickness_mm > 0:
-            raise ValueError("thickness_mm must be > 0")
+        for name in ("thickness_mm", "gamma"):
+            check_number(getattr(self, name), name)
+            low, high = DESIGN_BOX[name]
+            if not low <= getattr(self, name) <= high:
+                raise ValueError(f"{name} must be in [{low}, {high}] (the spectral quadrature's range), "
+                                 f"got {getattr(self, name)!r}")
         check_number(self.eta, "eta")
         if not self.eta > 1:
             raise ValueError("eta must be > 1")

@@ -2,10 +2,14 @@
 
 Differentiable with Dr.Jit, and the same model the synthetic renderer uses:
 
-* absorption of the two layers: :func:`polarbssrdf.skin.layers.layer_absorption`
+* the bands' spectral quadrature (:mod:`polarbssrdf.skin.quadrature`): every
+  band value is a weighted sum over a few wavelengths (nodes) shared by the
+  bands, the band integral a camera records (or, as a named approximation, one
+  band-effective node per band);
+* absorption of the two layers at each node: :func:`polarbssrdf.skin.layers.layer_absorption`
   (the formulas of :func:`~polarbssrdf.skin.layers.absorption_from_basis`) with
-  the band-effective chromophore basis of :mod:`polarbssrdf.skin.model`;
-* per-texel layer totals (eq. 42): for a band, the four epidermis totals
+  the node's chromophore basis and the blood at the face's oxygen fraction;
+* per-texel layer totals (eq. 42): for a node, the four epidermis totals
   depend only on the epidermis sigma_a (and eta), the dermis reflectance only
   on the dermis sigma_a, so they are read from cubic Hermite tables over
   ``ln sigma_a`` (linear in eta) whose node values and slopes are computed by
@@ -13,9 +17,9 @@ Differentiable with Dr.Jit, and the same model the synthetic renderer uses:
   :func:`polarbssrdf.render.subsurface.layer_totals_maps` (synth) calls. The
   tables are evaluated in Dr.Jit, so the totals have exact derivatives of the
   interpolant (interpolation error < 1e-6 in reflectance, tested);
-* eq. 46: :func:`polarbssrdf.render.subsurface.layered_exitance` on Dr.Jit
-  tensors under uniform unit irradiance, i.e. the texture-space blur synth
-  renders with;
+* eq. 46: :func:`polarbssrdf.render.subsurface.band_exitances` on Dr.Jit
+  tensors under uniform unit irradiance, i.e. the per-node texture-space blur
+  and band sum synth renders with;
 * the lobe albedo ``rho_sss = M / c(eta)``
   (:func:`~polarbssrdf.render.subsurface.subsurface_exit_fraction`, see
   docs/biophysical.md).
@@ -27,10 +31,11 @@ import drjit as dr
 import numpy as np
 
 from polarbssrdf._arrays import to_jit
-from polarbssrdf.render.subsurface import layered_exitance, subsurface_exit_fraction
+from polarbssrdf.render.subsurface import band_exitances, subsurface_exit_fraction
 from polarbssrdf.skin.inversion import BOUNDS as INVERSION_BOUNDS
-from polarbssrdf.skin.layers import layer_absorption
-from polarbssrdf.skin.model import DEFAULT_GAMMA, DEFAULT_THICKNESS_MM, band_chromophore_basis
+from polarbssrdf.skin.layers import blood_from_basis, layer_absorption
+from polarbssrdf.skin.model import DEFAULT_GAMMA, DEFAULT_THICKNESS_MM
+from polarbssrdf.skin.quadrature import DESIGN_BOX, as_quadrature
 from polarbssrdf.skin.twolayer import LayerTotals, layer_totals
 
 PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
@@ -80,40 +85,58 @@ def _hermite_coefficients(f, m, h):
     return (f0, m0, 3.0 * (f1 - f0) - 2.0 * m0 - m1, 2.0 * (f0 - f1) + m0 + m1)
 
 
-def absorption_range(basis, band, bounds):
-    """(min, max) of sigma_a (1/mm) of the epidermis and of the dermis in ``band`` over the box ``bounds``."""
+GAMMA_RANGE = DESIGN_BOX["gamma"]
+"""Oxygen fractions the tables cover: the face's oxygenation moves without rebuilding them."""
+
+
+def absorption_range(basis, node, bounds, gammas=GAMMA_RANGE):
+    """(min, max) of sigma_a (1/mm) of the epidermis and of the dermis at quadrature node ``node``
+    over the box ``bounds`` and the oxygen fractions ``gammas``."""
     corners = np.array(np.meshgrid(*[bounds[n] for n in PARAMETERS], indexing="ij")).reshape(4, -1)
-    epi, der = layer_absorption(basis["eumelanin"][band], basis["pheomelanin"][band], basis["blood"][band],
-                                basis["baseline"][band], *corners)
+    epi, der = [], []
+    for gamma in gammas:
+        blood = float(blood_from_basis(basis, gamma)[node])
+        e, d = layer_absorption(basis["eumelanin"][node], basis["pheomelanin"][node], blood,
+                                basis["baseline"][node], *corners)
+        epi.append(e)
+        der.append(d)
+    epi, der = np.concatenate(epi), np.concatenate(der)
     return (epi.min(), epi.max()), (der.min(), der.max())
 
 
 class BiophysicalModel:
-    """Eq. 46 rendering of the lobe albedo from the four maps, in Dr.Jit (see the module docstring).
+    """Eq. 46 rendering of the band-integrated lobe albedo from the four maps, in Dr.Jit (see the
+    module docstring).
 
     Parameters
     ----------
-    bands : list of Band
+    spectral : SpectralQuadrature or list of Band
+        The bands' quadrature (:func:`polarbssrdf.skin.quadrature.as_quadrature`: bands
+        get their band integral's).
     atlas : TexelAtlas
         Texel sizes and the surface mask (the blur's domain).
     eta : float or (T, T) array
         Refractive index per texel (held fixed).
     thickness_mm : float
-        Epidermis thickness.
+        Epidermis thickness of the face (:meth:`set_skin` changes it).
+    gamma : float
+        Oxygen fraction of the face's blood (:meth:`set_skin` changes it).
     bounds : dict
         ``name -> (low, high)`` of the four parameters: the tables cover every
-        sigma_a they allow.
+        sigma_a they allow at oxygen fractions in :data:`GAMMA_RANGE`.
     """
 
-    def __init__(self, bands, atlas, eta=1.4, thickness_mm=DEFAULT_THICKNESS_MM, bounds=None,
-                 table_nodes=TABLE_NODES):
+    def __init__(self, spectral, atlas, eta=1.4, thickness_mm=DEFAULT_THICKNESS_MM, bounds=None,
+                 table_nodes=TABLE_NODES, gamma=DEFAULT_GAMMA):
         Float, UInt32, TensorXf = jit_types()
-        self.bands = list(bands)
+        self.quadrature = as_quadrature(spectral)
+        self.bands = list(self.quadrature.bands)
+        self.weights = np.asarray(self.quadrature.weights, dtype=np.float64)
         self.atlas = atlas
         self.shape = atlas.valid.shape
-        self.thickness_mm = float(thickness_mm)
         self.bounds = dict(bounds or INVERSION_BOUNDS)
-        self.basis = band_chromophore_basis(self.bands, DEFAULT_GAMMA)
+        self.basis = self.quadrature.basis
+        self.table_nodes = int(table_nodes)
         eta = np.broadcast_to(np.asarray(eta, dtype=np.float64), self.shape)
         if not np.all(np.isfinite(eta) & (eta > 1.0)):
             raise ValueError("eta must be finite and > 1 at every texel")
@@ -130,16 +153,38 @@ class BiophysicalModel:
             self._row, self._frac = to_jit(UInt32, np.zeros(eta.size), np.uint32), None
         self.inverse_exit_fraction = to_jit(Float, (1.0 / subsurface_exit_fraction(eta)).ravel(), np.float32)
         self.irradiance = to_jit(TensorXf, atlas.valid, np.float32)
-        self.tables = [self._band_tables(b, table_nodes) for b in range(len(self.bands))]
-        # per band, the chromophore basis as kernel inputs: the bands then share kernels
-        self._absorption_basis = [tuple(dr.opaque(Float, float(self.basis[key][b]))
-                                        for key in ("eumelanin", "pheomelanin", "blood", "baseline"))
-                                  for b in range(len(self.bands))]
+        # the band weights change with the bands: kernel inputs, not literals
+        self._weights_jit = [[dr.opaque(Float, float(w)) for w in row] for row in self.weights]
+        self.thickness_mm = self.gamma = None
+        self.set_skin(thickness_mm, gamma)
 
-    def _band_tables(self, band, nodes):
+    @property
+    def nodes(self):
+        return self.quadrature.nodes
+
+    def set_skin(self, thickness_mm=None, gamma=None):
+        """Set the face's epidermal thickness (mm; rebuilds the epidermis tables) and oxygen fraction."""
+        Float, _, _ = jit_types()
+        if thickness_mm is not None and thickness_mm != self.thickness_mm:
+            if not (np.isfinite(thickness_mm) and thickness_mm > 0):
+                raise ValueError(f"thickness_mm must be > 0, got {thickness_mm!r}")
+            self.thickness_mm = float(thickness_mm)
+            self.tables = [self._node_tables(q, self.table_nodes) for q in range(self.nodes)]
+        if gamma is not None and gamma != self.gamma:
+            low, high = GAMMA_RANGE
+            if not low <= gamma <= high:
+                raise ValueError(f"gamma must be in [{low}, {high}] (the tables' range), got {gamma!r}")
+            self.gamma = float(gamma)
+            blood = blood_from_basis(self.basis, self.gamma)
+            # per node, the chromophore basis as kernel inputs: the nodes then share kernels
+            self._absorption_basis = [tuple(dr.opaque(Float, float(v)) for v in (
+                self.basis["eumelanin"][q], self.basis["pheomelanin"][q], blood[q], self.basis["baseline"][q]))
+                for q in range(self.nodes)]
+
+    def _node_tables(self, node, nodes):
         basis = self.basis
-        ss_out, ss_in = basis["scattering_epidermis"][band], basis["scattering_dermis"][band]
-        (eo_lo, eo_hi), (ed_lo, ed_hi) = absorption_range(basis, band, self.bounds)
+        ss_out, ss_in = basis["scattering_epidermis"][node], basis["scattering_dermis"][node]
+        (eo_lo, eo_hi), (ed_lo, ed_hi) = absorption_range(basis, node, self.bounds)
         tables = []
         for which, (low, high) in (("epidermis", (eo_lo, eo_hi)), ("dermis", (ed_lo, ed_hi))):
             u0, u1 = np.log(low * 0.99), np.log(high * 1.01)
@@ -161,15 +206,15 @@ class BiophysicalModel:
             tables.append(_Table(u0, h, coefficients))
         return tables
 
-    def absorption(self, band, params):
-        """(sigma_a epidermis, sigma_a dermis) of ``band`` for Dr.Jit parameter arrays."""
-        return layer_absorption(*self._absorption_basis[band], *(params[n] for n in PARAMETERS))
+    def absorption(self, node, params):
+        """(sigma_a epidermis, sigma_a dermis) at quadrature ``node`` for Dr.Jit parameter arrays."""
+        return layer_absorption(*self._absorption_basis[node], *(params[n] for n in PARAMETERS))
 
-    def layer_totals(self, band, params):
-        """The five layer totals (flat Dr.Jit Floats) of ``band`` at every texel."""
+    def layer_totals(self, node, params):
+        """The five layer totals (flat Dr.Jit Floats) at quadrature ``node`` at every texel."""
 
-        sa_out, sa_in = self.absorption(band, params)
-        epidermis, dermis = self.tables[band]
+        sa_out, sa_in = self.absorption(node, params)
+        epidermis, dermis = self.tables[node]
         u_out = dr.log(sa_out)
         values = epidermis(u_out, self._row)
         if self._frac is not None:
@@ -178,27 +223,43 @@ class BiophysicalModel:
         (R_in,) = dermis(dr.log(sa_in), self._row * 0)
         return values + [R_in]
 
-    def render(self, params, band, tolerance=1e-4):
-        """Lobe albedo ``rho_sss`` of ``band`` (flat Dr.Jit Float): eq. 46 under unit irradiance / c(eta).
+    def _band_sums(self, node_values):
+        """Per band, ``sum_q w_bq value_q`` of flat Dr.Jit Floats (nodes of weight 0 skipped)."""
+        out = []
+        for b, row in enumerate(self.weights):
+            total = None
+            for q in np.flatnonzero(row > 0):
+                term = node_values[q] * self._weights_jit[b][q]
+                total = term if total is None else total + term
+            out.append(total)
+        return out
 
-        ``params``: ``name -> flat Dr.Jit Float`` (T*T) of the four maps."""
+    def render_bands(self, params, tolerance=1e-4):
+        """Per band, the lobe albedo ``rho_sss`` (flat Dr.Jit Float): the band integral of eq. 46
+        under unit irradiance, / c(eta). ``params``: ``name -> flat Dr.Jit Float`` (T*T) of
+        the four maps."""
         _, _, TensorXf = jit_types()
-        totals = LayerTotals(*(TensorXf(x, self.shape) for x in self.layer_totals(band, params)))
-        exitance = layered_exitance(self.irradiance, totals, self.kernels[band], self.atlas, tolerance=tolerance)
-        return exitance.array * self.inverse_exit_fraction
+        totals = [LayerTotals(*(TensorXf(x, self.shape) for x in self.layer_totals(q, params)))
+                  for q in range(self.nodes)]
+        exitances = band_exitances(self.irradiance, totals, self.kernels, self.weights, self.atlas, tolerance)
+        return [exitance.array * self.inverse_exit_fraction for exitance in exitances]
 
-    def local_albedo(self, params, band):
-        """Lobe albedo of ``band`` without the blur (flat Dr.Jit Float): eq. 47 / c(eta).
+    def local_albedo_bands(self, params):
+        """Per band, the lobe albedo without the blur (flat Dr.Jit Float): the band integral of
+        eq. 47 / c(eta).
 
-        ``R_bar = R_of + T_of R_in T_ob / (1 - R_in R_ob)`` per texel: what
-        :meth:`render` gives for maps that are constant over the blur's reach.
-        The fit's Gauss-Newton steps use its Jacobian (the blur mixes texels
-        but does not change this per-texel sensitivity for smooth maps)."""
-        R_of, T_of, R_ob, T_ob, R_in = self.layer_totals(band, params)
-        return (R_of + T_of * R_in * T_ob / (1.0 - R_in * R_ob)) * self.inverse_exit_fraction
+        ``R_bar = R_of + T_of R_in T_ob / (1 - R_in R_ob)`` per texel and node: what
+        :meth:`render_bands` gives for maps that are constant over the blur's reach. The
+        fit's Gauss-Newton steps use its Jacobian (the blur mixes texels but does not
+        change this per-texel sensitivity for smooth maps)."""
+        nodes = []
+        for q in range(self.nodes):
+            R_of, T_of, R_ob, T_ob, R_in = self.layer_totals(q, params)
+            nodes.append(R_of + T_of * R_in * T_ob / (1.0 - R_in * R_ob))
+        return [value * self.inverse_exit_fraction for value in self._band_sums(nodes)]
 
     kernels: list = None
-    """Per band, the normalized SoG kernels of the layer profiles (set by the fit)."""
+    """Per quadrature node, the normalized SoG kernels of the layer profiles (set by the fit)."""
 
     def render_numpy(self, maps, kernels=None):
         """(n_bands, T, T) float32 lobe albedo of NumPy maps (no autodiff)."""
@@ -207,9 +268,6 @@ class BiophysicalModel:
         if kernels is not None:
             self.kernels = kernels
         params = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS}
-        out = []
-        for band in range(len(self.bands)):
-            value = self.render(params, band)
-            dr.eval(value)
-            out.append(np.array(value, dtype=np.float32).reshape(self.shape))
-        return np.stack(out)
+        values = self.render_bands(params)
+        dr.eval(*values)
+        return np.stack([np.array(value, dtype=np.float32).reshape(self.shape) for value in values])

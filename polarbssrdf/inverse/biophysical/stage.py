@@ -6,11 +6,11 @@ Reads the subsurface albedo maps an earlier stage registered in
 :func:`polarbssrdf.inverse.biophysical.fit.fit_biophysical`, and writes per frame
 
 * ``bio/maps_f####.exr``: ``C_m, beta_m, C_h_out, C_h_in`` (volume fractions)
-  and their posterior standard deviations ``<map>_std`` (same units),
-  ``albedo_gain`` (the band-common gain fitted as a nuisance, unitless) and
-  ``albedo_gain_std``, ``residual`` (RMS over bands of rendered minus input
-  albedo) and ``flagged`` (1 where the input was invalid and the values come
-  from the prior and the neighbours);
+  and their posterior standard deviations ``<map>_std`` (same units; the face's
+  thickness and oxygenation, the index's error marginalized), ``residual`` (RMS
+  over bands of rendered minus input albedo) and ``flagged`` (1 where the input
+  was invalid and the values come from the prior); the metadata's ``noise.face``
+  holds the face's fitted epidermal thickness (mm) and oxygenation;
 * ``bio/previews/<map>_f####.png`` with colour bars and units;
 * ``bio/summary.json``: mean and standard deviation per region and frame in
   the layout of the supplement's Table 2 (:func:`region_summary`).
@@ -37,7 +37,7 @@ from tqdm import tqdm
 from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.geometry.face import face_mesh, face_region_masks
 from polarbssrdf.inverse.biophysical.config import bio_config
-from polarbssrdf.inverse.biophysical.fit import GAIN, fit_biophysical
+from polarbssrdf.inverse.biophysical.fit import fit_biophysical
 from polarbssrdf.inverse.biophysical.model import PARAMETERS
 from polarbssrdf.inverse.frames import run_frames
 from polarbssrdf.inverse.results.directory import (
@@ -60,8 +60,8 @@ SOURCE_STAGES = ("dynamic", "static")
 
 UNITS = {"C_m": "volume fraction", "beta_m": "fraction of melanin",
          "C_h_out": "volume fraction", "C_h_in": "volume fraction", "residual": "albedo",
-         "flagged": "unitless", GAIN: "unitless"}
-UNITS.update({f"{name}_std": UNITS[name] for name in (*PARAMETERS, GAIN)})
+         "flagged": "unitless"}
+UNITS.update({f"{name}_std": UNITS[name] for name in PARAMETERS})
 """Units of the stage's channels (``C_m``: melanin in the epidermis; ``beta_m``: eumelanin
 share of it; ``C_h_out``/``C_h_in``: blood in the epidermis/dermis)."""
 
@@ -175,8 +175,8 @@ def region_summary(maps_per_frame, masks):
 def write_bio_previews(channels, directory, frame):
     """Previews of the four maps and the residual (colour bars, units)."""
 
-    shown = {name: channels[name] for name in (*PARAMETERS, *(f"{n}_std" for n in PARAMETERS), GAIN,
-                                               "residual") if name in channels}
+    shown = {name: channels[name] for name in (*PARAMETERS, *(f"{n}_std" for n in PARAMETERS), "residual")
+             if name in channels}
     return write_map_previews(shown, directory, f"f{frame:04d}", units=UNITS)
 
 

@@ -162,29 +162,27 @@ def _two_map_system(texels, mean_std, seed):
     """A Gauss-Newton system of C_m and C_h_out on a square grid: the prior, its
     ``PriorTerms`` (face means of hyperprior std ``mean_std``; 0 holds a mean), data blocks
     from six bands that vary over the grid, and the generator for right-hand sides."""
-    from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
-    from polarbssrdf.inverse.biophysical.fit import PriorTerms
+    from polarbssrdf.inverse.biophysical.gauss_newton import PriorTerms
 
     prior = grid_prior(2, texels)
     n = texels * texels
-    config = BiophysicalConfig(prior_std={"C_m": 0.004, "C_h_out": 0.01},
-                               prior_mean={"C_m": [0.05, mean_std[0]], "C_h_out": [0.07, mean_std[1]]})
-    terms = PriorTerms(["C_m", "C_h_out"], prior, config, {"C_m": 0.05, "C_h_out": 0.07})
+    terms = PriorTerms(["C_m", "C_h_out"], prior, std=[0.004, 0.01], mean0=[0.05, 0.07],
+                       mean_variance=np.square(mean_std), start=[0.05, 0.07], adapt=[True, True])
     rng = np.random.default_rng(seed)
     J = rng.standard_normal((n, 6, 2)) * np.array([300.0, 100.0]) * rng.uniform(0.5, 2.0, (n, 1, 1))
     return prior, terms, np.einsum("nbi,nbj->nij", J, J), rng
 
 
 def test_the_gauss_newton_step_solves_the_joint_system_of_maps_and_face_means():
-    """_solve_step (CG, Fourier preconditioned) against the dense solve of the system over two
+    """solve_step (CG, Fourier preconditioned) against the dense solve of the system over two
     maps and their free face means, with data blocks that vary over the grid."""
-    from polarbssrdf.inverse.biophysical.fit import _solve_step
+    from polarbssrdf.inverse.biophysical.gauss_newton import solve_step
 
     texels = 20
     n = texels * texels
     prior, terms, blocks, rng = _two_map_system(texels, mean_std=(0.02, 0.03), seed=11)
     rhs_x, rhs_mu = rng.standard_normal((n, 2)), rng.standard_normal(2)
-    step, step_mu, _ = _solve_step(blocks, terms, rhs_x, rhs_mu, damping=0.0, rtol=1e-8, max_iterations=2000)
+    step, step_mu, _ = solve_step(blocks, terms, rhs_x, rhs_mu, damping=0.0, rtol=1e-8, max_iterations=2000)
     Q = prior.unit.toarray()
     inverse_tau2 = 1.0 / terms.tau2
     dense = np.zeros((2 * n + 2, 2 * n + 2))
@@ -200,10 +198,10 @@ def test_the_gauss_newton_step_solves_the_joint_system_of_maps_and_face_means():
 
 
 def test_the_step_holds_the_active_set_and_predicts_the_quadratic_models_decrease():
-    """With some values fixed (at a bound), _solve_step against the dense solve of the system
+    """With some values fixed (at a bound), solve_step against the dense solve of the system
     with those rows and columns removed; its predicted decrease against ``r.d - d.H d / 2``
     of the undamped dense system, also with damping on."""
-    from polarbssrdf.inverse.biophysical.fit import _solve_step
+    from polarbssrdf.inverse.biophysical.gauss_newton import solve_step
 
     texels = 16
     n = texels * texels
@@ -213,7 +211,7 @@ def test_the_step_holds_the_active_set_and_predicts_the_quadratic_models_decreas
     H = _block_diagonal(blocks) + np.kron(prior.unit.toarray(), np.diag(1.0 / terms.tau2))
     free = ~fixed.ravel()
     for damping in (0.0, 0.3):
-        step, step_mu, predicted = _solve_step(blocks, terms, rhs_x, np.zeros(2), damping=damping, rtol=1e-10,
+        step, step_mu, predicted = solve_step(blocks, terms, rhs_x, np.zeros(2), damping=damping, rtol=1e-10,
                                                max_iterations=3000, fixed=fixed)
         assert np.all(step[fixed] == 0.0) and np.all(step_mu == 0.0)
         damped = H + damping * np.diag(np.diag(H))

@@ -24,7 +24,8 @@ def face():
 
     mi.set_variant("llvm_ad_mono_polarized")
     atlas = texel_atlas(to_mitsuba(face_mesh(1)), T)
-    maps = truth_maps(atlas, TruthSettings(skin=("cheek", "IV")), np.random.default_rng(1))
+    layers = {"thickness_mm": (0.25, 0.0, 0.10, 0.40), "gamma": (0.75, 0.0, 0.50, 0.95)}  # the model's
+    maps = truth_maps(atlas, TruthSettings(skin=("cheek", "IV"), skin_layers=layers), np.random.default_rng(1))
     bands = default_bands()
     return atlas, bands, maps, subsurface_albedo(maps, bands)
 
@@ -68,9 +69,10 @@ def test_an_identical_rerun_compiles_no_new_kernel(face):
         np.testing.assert_array_equal(rerun.maps[name], first.maps[name])
 
 
-def test_every_band_and_other_maps_reuse_the_models_kernels(face):
-    """The chromophore basis and the table origins differ per band (and per run): kernel
-    inputs, so once one band's per-texel albedo is compiled, the others compile nothing."""
+def test_every_node_and_other_maps_reuse_the_models_kernels(face):
+    """The chromophore basis and the table origins differ per quadrature node (and per run):
+    kernel inputs, so once one node's layer totals are compiled, the others compile nothing;
+    and the band sums of the nodes without the blur are synth's lobe albedo (eq. 47 / c(eta))."""
     from polarbssrdf._arrays import to_jit
     from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel, jit_types
 
@@ -78,21 +80,19 @@ def test_every_band_and_other_maps_reuse_the_models_kernels(face):
     Float, _, _ = jit_types()
     model = BiophysicalModel(bands, atlas, maps["eta"])
 
-    def local(values, band):
+    def totals(values, node):
         params = {n: to_jit(Float, values[n].ravel(), np.float32) for n in PARAMETERS}
-        out = model.local_albedo(params, band)
-        dr.eval(out)
-        return np.array(out).reshape(atlas.valid.shape)
+        out = model.layer_totals(node, params)
+        dr.eval(*out)
+        return [np.array(v) for v in out]
 
-    first = local(maps, 0)
+    totals(maps, 0)
     other = {n: maps[n] * 0.9 for n in PARAMETERS}
-    rendered, launched, compiled = compiled_kernels(
-        lambda: [local(other, band) for band in range(1, len(bands))] + [local(maps, 1)])
-    assert launched >= len(bands) - 1
-    assert compiled == [], f"{len(compiled)} of {launched} kernels compiled anew for other bands"
-    # each band keeps its own basis: without the blur the model is synth's lobe albedo (eq. 47
-    # / c(eta)) of that band, to the tables' interpolation error
+    _, launched, compiled = compiled_kernels(lambda: [totals(other, node) for node in range(1, model.nodes)])
+    assert model.nodes > len(bands) and launched >= model.nodes - 1
+    assert compiled == [], f"{len(compiled)} of {launched} kernels compiled anew for other nodes"
+    params = {n: to_jit(Float, maps[n].ravel(), np.float32) for n in PARAMETERS}
+    local = [np.array(v).reshape(atlas.valid.shape) for v in model.local_albedo_bands(params)]
     surface = atlas.valid
-    np.testing.assert_allclose(first[surface], albedo[0][surface], rtol=1e-4)
-    np.testing.assert_allclose(rendered[-1][surface], albedo[1][surface], rtol=1e-4)
-    assert np.abs(albedo[1] - albedo[0])[surface].min() > 1e-2  # the bands do differ
+    for b in range(len(bands)):  # to the tables' interpolation error
+        np.testing.assert_allclose(local[b][surface], albedo[b][surface], rtol=1e-4)
