@@ -2,7 +2,8 @@
 
 Three skin rows x two regions, a truth seed per face, the chromophores' bases one
 across-rows spread off Table 2 (:func:`~polarbssrdf.synth.truth.table2_offset_settings`),
-their within-face spreads at 0.5x or 2x synth's default (alternating), odd faces with a
+their within-face spreads at 0.5x or 2x synth's default (alternating; 2x capped at 0.45 of
+the base, where a field would be clipped at 0), odd faces with a
 multi-scale field family (3 mm correlation plus sharp-edged freckles on C_m and blood
 patches on C_h_in), epidermal thickness and oxygenation off the fit's values
 (``--thickness``, ``--gamma``: face means, with 0.01 mm and 0.02 within the face), the input
@@ -35,14 +36,18 @@ def face(index, size, noise, thickness, gamma, eta_error):
     from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
     from polarbssrdf.spectral import default_bands
     from polarbssrdf.synth.synthesize import subsurface_albedo
+    from polarbssrdf.skin.parameters import TABLE2, table2_spread_across_rows
     from polarbssrdf.synth.truth import DEFAULT_BIOPHYSICAL_STD, smooth_field, table2_offset_settings, truth_maps
 
     atlas = texel_atlas(to_mitsuba(face_mesh(1)), size)
     scale = 0.5 if index % 2 == 0 else 2.0
     fields = {"correlation_mm": 3.0, "features": FEATURES} if index % 2 else {}
     layers = {"thickness_mm": (thickness, 0.01, 0.10, 0.40), "gamma": (gamma, 0.02, 0.50, 0.95)}
-    settings = table2_offset_settings(ROWS[index], 1.0, spread="rows", skin_layers=layers,
-                                      biophysical_std={k: v * scale for k, v in DEFAULT_BIOPHYSICAL_STD.items()},
+    row = TABLE2[ROWS[index]]
+    across = table2_spread_across_rows()
+    # 2x where the base allows it (a field is refused within two of its std of 0)
+    std = {k: min(v * scale, 0.45 * (getattr(row, k) + across[k])) for k, v in DEFAULT_BIOPHYSICAL_STD.items()}
+    settings = table2_offset_settings(ROWS[index], 1.0, spread="rows", skin_layers=layers, biophysical_std=std,
                                       **fields)
     rng = np.random.default_rng(3100 + index)
     truth = truth_maps(atlas, settings, rng)
