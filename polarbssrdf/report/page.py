@@ -825,6 +825,13 @@ def build_report_html(data, *, variant=DEFAULT_VARIANT, title=None,
                   f"without ground truth ({html.escape(data.no_truth_reason or 'none')}): "
                   "maps, losses and re-rendering residuals only")
     warning = confidence_warning(data)
+    # the capture this page was made with (report --capture), not only the one result.json
+    # records: a copy without truth, or one moved since, is what the figures come from
+    shown_capture = Path(data.capture.directory).resolve()
+    fitted_note = ""
+    if Path(str(manifest.capture)).resolve() != shown_capture:
+        fitted_note = (f" (the maps were fitted on <code>{html.escape(str(manifest.capture))}"
+                       "</code>, as result.json records)")
     extra = "".join(f"<br>{html.escape(str(k))}: {html.escape(str(v))}"
                     for k, v in (extra_metrics or {}).items())
     nav = " ".join(f'<a href="#{a}">{html.escape(h)}</a>' for a, h, _ in sections)
@@ -837,7 +844,7 @@ def build_report_html(data, *, variant=DEFAULT_VARIANT, title=None,
 <body>
 <h1>{html.escape(heading)}</h1>
 <p class="meta">Result <code>{html.escape(str(data.result_dir.resolve()))}</code> of capture
-<code>{html.escape(str(manifest.capture))}</code>, {truth_note}.<br>
+<code>{html.escape(str(shown_capture))}</code>{fitted_note}, {truth_note}.<br>
 {manifest.texture_size} x {manifest.texture_size} texels; stages {', '.join(stages)};
 frames {frame_text}; bands {', '.join(data.bands)}.
 {_timings_text(data.timings)}{extra}<br>Written {created} by polarbssrdf.report.page.</p>

@@ -1,0 +1,75 @@
+"""The report and ``reconstruct``'s warnings on a real (tiny) run (issue 32, items 5 and 6).
+
+One tiny synthetic sphere (4 views, 48 x 48 px, T = 32) and one static run of 2 epochs
+with camera cam03 held out, made once for the module (well under a minute): three fitted
+cameras of a ring see a texel of the sphere with a median of 2 usable views.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+import mitsuba as mi
+
+from helpers import run_cli
+
+T = 32
+SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=4)
+
+
+@pytest.fixture(scope="module")
+def capture_dir(tmp_path_factory):
+    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    directory = tmp_path_factory.mktemp("report_run") / "capture"
+    synthesize(directory, SynthesisSettings(**SETTINGS), progress=False)
+    return directory
+
+
+@pytest.fixture(scope="module")
+def run(capture_dir, tmp_path_factory):
+    """``reconstruct CAPTURE OUT --stages static --holdout cam03`` (2 epochs): its output."""
+    config = tmp_path_factory.mktemp("config") / "small.json"
+    config.write_text(json.dumps({"patch_size": 16, "min_steps_per_epoch": 2}))
+    outdir = tmp_path_factory.mktemp("report_runs") / "out"
+    status, stdout, stderr = run_cli("reconstruct", capture_dir, outdir, "--stages", "static",
+                                     "--iterations", "2", "--config", config, "--holdout",
+                                     "cam03", "--quiet")
+    assert status == 0, stderr
+    return {"outdir": outdir, "stdout": stdout, "stderr": stderr}
+
+
+def _copy_without_truth(capture_dir, target):
+    """A copy of the capture without ``truth/``, its manifest as a real capture's."""
+    shutil.copytree(capture_dir, target, ignore=shutil.ignore_patterns("truth"))
+    manifest = json.loads((target / "capture.json").read_text())
+    manifest.update(synthetic=False, truth=None)
+    (target / "capture.json").write_text(json.dumps(manifest))
+    return target
+
+
+# --------------------------------------------------------------------------- item 6
+def test_the_header_names_the_capture_passed_with_capture(run, capture_dir, tmp_path):
+    """``report RES --capture NOTRUTH`` said "of capture <the one result.json records>"."""
+    notruth = _copy_without_truth(capture_dir, tmp_path / "notruth")
+    page_path = tmp_path / "report.html"
+    status, _, stderr = run_cli("report", run["outdir"], "--capture", notruth, "--out",
+                                page_path, "--quiet")
+    assert status == 0, stderr
+    page = page_path.read_text()
+    header = page.split('<p class="meta">', 1)[1].split("</p>", 1)[0]
+    assert f"of capture\n<code>{notruth.resolve()}</code>" in header
+    assert f"the maps were fitted on <code>{capture_dir.resolve()}</code>" in header
+    assert "without ground truth (the capture has no ground truth)" in header
+
+    # with the capture result.json records, the header names it and nothing else
+    page_path = tmp_path / "own.html"
+    status, _, stderr = run_cli("report", run["outdir"], "--out", page_path, "--quiet")
+    assert status == 0, stderr
+    header = page_path.read_text().split('<p class="meta">', 1)[1].split("</p>", 1)[0]
+    assert f"of capture\n<code>{capture_dir.resolve()}</code>" in header
+    assert "fitted on" not in header
