@@ -38,6 +38,7 @@ from polarbssrdf.inverse.biophysical.stage import run_bio_stage
 from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
 from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
 from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
+from polarbssrdf.inverse.evaluation.trust import untrusted_text, views_check
 from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage, static_frame_of
 from polarbssrdf.inverse.polarimetric.config import DEFAULT_DYNAMIC_ITERATIONS
@@ -55,6 +56,7 @@ from polarbssrdf.inverse.results.directory import (
     continue_result_directory,
     prepare_result_directory,
     read_result,
+    read_stage_maps,
     record_settings,
     record_stage_seconds,
 )
@@ -373,6 +375,28 @@ def say_confidence(stage, summaries, progress=True) -> None:
                   "of the object raise it", file=sys.stderr, flush=True)
 
 
+def warn_if_untrusted(outdir, frame) -> dict | None:
+    """Warn on stderr (also with ``--quiet``) when the static frame's maps, and the
+    biophysical std if the run has one, cannot be trusted: too few usable views per
+    confident texel (:func:`~polarbssrdf.inverse.evaluation.trust.views_check`). Returns
+    the check (None without static maps or confident texels)."""
+    outdir = Path(outdir)
+    try:
+        maps = read_stage_maps(outdir, "static", int(frame))
+        manifest = read_result(outdir)
+    except (OSError, ValueError):  # no static maps (a failed stage said why)
+        return None
+    if "confidence" not in maps:
+        return None
+    check = views_check(maps["confidence"])  # confidence is 0 off the mesh
+    if check is None or check["trusted"]:
+        return check
+    has_std = manifest.record("bio", int(frame)) is not None
+    print(f"polarbssrdf reconstruct: warning: static frame {frame}: "
+          f"{untrusted_text(check, has_std)}", file=sys.stderr, flush=True)
+    return check
+
+
 def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, texture=None,
                 frame=None, iterations=None, workers=None, scheduler=None, resume=False,
                 overwrite=False, progress=True, variant=DEFAULT_VARIANT) -> Reconstruction:
@@ -526,6 +550,8 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                          f"summary.json; {_seconds_text(stage, reused, stage_start)})")
         if stage not in reused:  # timings.json keeps the seconds of the run that did the work
             record_stage_seconds(outdir, {stage: time.perf_counter() - stage_start})
+    if {"static", "bio"} & set(stages):
+        warn_if_untrusted(outdir, frame)
     return Reconstruction(outdir, capture=capture.directory, texture=texture, frame=frame,
                           holdout=holdout, seconds=time.perf_counter() - started,
                           stage_lines=lines, failed=failed, reused=reused)

@@ -45,7 +45,16 @@ from polarbssrdf.geometry.height import normals_from_height
 from polarbssrdf.inverse.biophysical.model import PARAMETERS as BIO_PARAMETERS
 from polarbssrdf.inverse.biophysical.stage import UNITS, region_masks, region_summary
 from polarbssrdf.inverse.evaluation.rerender import captured_view, render_view, separation_errors
-from polarbssrdf.inverse.evaluation.scores import evaluate_stages, truth_capture
+from polarbssrdf.inverse.evaluation.scores import (  # noqa: F401 (losing_maps: the page's API)
+    COVERAGE_IDEAL,
+    LOSES,
+    bio_coverage,
+    evaluate_stages,
+    loses_to_constant,
+    losing_maps,
+    truth_capture,
+)
+from polarbssrdf.inverse.evaluation.trust import untrusted_text, views_check
 from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
 from polarbssrdf.inverse.results.directory import REPORT_FILE, RESULT_FILE, read_result
 from polarbssrdf.io.atomic import atomic_write_text
@@ -554,53 +563,10 @@ def losses_section(data) -> str:
 
 
 # --------------------------------------------------------------------------- metrics table
-LOSES = "no better than the best constant map"
-"""The mark of a map whose error is not below the best constant map's."""
-
-
 def _ratio(constant, value):
     if value is None or constant is None or not value > 0:
         return "-"
     return f"{constant / value:.2f}x"
-
-
-def loses_to_constant(value, constant) -> bool:
-    """Whether a map's error ``value`` is not below the best constant map's ``constant``
-    (errors in one unit; None when either is unknown)."""
-    return value is not None and constant is not None and value >= constant
-
-
-def losing_maps(evaluation) -> dict:
-    """Maps whose error is not below the best constant map's, with the figures as text:
-    ``{"static": {name: text}, "bio": {frame: {name: text}}}`` (empty without truth)."""
-    found = {"static": {}, "bio": {}}
-    if not evaluation:
-        return found
-    static = (evaluation.get("static") or {}).get("maps") or {}
-    for name in ("eta", "alpha_s", "alpha_ss", "displacement"):
-        entry = static.get(name)
-        if entry and loses_to_constant(entry.get("mae"), entry.get("constant_mae")):
-            found["static"][name] = (f"{LOSES} (MAE {entry['mae']:.4g} against the constant "
-                                     f"map's {entry['constant_mae']:.4g})")
-    relative = [(name, static.get(name)) for name in ("rho_s", "rho_ss")]
-    relative += [(f"rho_sss.{band}", entry) for band, entry in
-                 ((static.get("rho_sss") or {}).get("bands") or {}).items()]
-    for name, entry in relative:
-        if entry and loses_to_constant(entry.get("relative_error"),
-                                       entry.get("constant_relative_error")):
-            found["static"][name] = (f"{LOSES} (relative error "
-                                     f"{100 * entry['relative_error']:.2f}% against the "
-                                     f"constant map's "
-                                     f"{100 * entry['constant_relative_error']:.2f}%)")
-    for frame, entry in (evaluation.get("bio") or {}).items():
-        for name, scores in (entry.get("maps") or {}).items():
-            if loses_to_constant(scores.get("mae_of_range"),
-                                 scores.get("constant_mae_of_range")):
-                found["bio"].setdefault(str(frame), {})[name] = (
-                    f"{LOSES} in frame {frame} (MAE {100 * scores['mae_of_range']:.1f}% of the "
-                    f"Table 2 range against the constant map's "
-                    f"{100 * scores['constant_mae_of_range']:.1f}%)")
-    return found
 
 
 def _mark(loses) -> str:
@@ -739,6 +705,35 @@ def confidence_warning(data) -> str:
             "measurements; add views that cover them.</p>")
 
 
+def untrusted_warning(data) -> str:
+    """A paragraph for the top of the page when the run's own data says its maps and std
+    cannot be trusted (:func:`~polarbssrdf.inverse.evaluation.trust.views_check`: too few
+    usable views per confident texel of the static frame); "" otherwise. With truth, the
+    measured 2-std coverage of the biophysical maps follows as the evidence."""
+    static = data.maps.get("static")
+    frame = _static_frame(data)
+    if not static or frame not in static or "confidence" not in static[frame]:
+        return ""
+    check = views_check(static[frame]["confidence"], data.atlas.valid)
+    if check is None or check["trusted"]:
+        return ""
+    bio = data.maps.get("bio") or {}
+    has_std = bool(bio) and any(name.endswith(STD_SUFFIX) for name in bio[sorted(bio)[0]])
+    evidence = ""
+    coverage = bio_coverage(data.evaluation)
+    if coverage:
+        figures = ", ".join(f"{name} {value:.2f}" for name, value in coverage.items())
+        evidence = (f" Against the truth, the fraction of texels within 2 std is {figures} "
+                    f"(ideal {COVERAGE_IDEAL:.3f}).")
+    losers = losing_maps(data.evaluation)
+    count = len(losers["static"]) + len({n for per in losers["bio"].values() for n in per})
+    if count:
+        evidence += f" {count} map(s) are {LOSES} (Metrics below)."
+    return ('<p class="warning" id="untrusted"><strong>These maps and their uncertainty '
+            f"cannot be trusted.</strong> Static frame {frame}: "
+            f"{html.escape(untrusted_text(check, has_std))}.{html.escape(evidence)}</p>")
+
+
 # --------------------------------------------------------------------------- page
 STYLE = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto;
@@ -824,7 +819,7 @@ def build_report_html(data, *, variant=DEFAULT_VARIANT, title=None,
     truth_note = ("with ground truth (synthetic capture)" if data.truth else
                   f"without ground truth ({html.escape(data.no_truth_reason or 'none')}): "
                   "maps, losses and re-rendering residuals only")
-    warning = confidence_warning(data)
+    warning = untrusted_warning(data) + confidence_warning(data)
     # the capture this page was made with (report --capture), not only the one result.json
     # records: a copy without truth, or one moved since, is what the figures come from
     shown_capture = Path(data.capture.directory).resolve()

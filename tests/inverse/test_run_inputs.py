@@ -335,7 +335,8 @@ def test_a_low_confident_share_is_said_and_warned(sphere_capture_dir, tmp_path):
     lines = [line for line in stderr.splitlines() if line.startswith("polarbssrdf reconstruct: ")]
     assert f"polarbssrdf reconstruct: static: {percent} of the surface is confident " \
            "(metrics.json: confidence)" in lines
-    warnings = [line for line in lines if "warning" in line]
+    # (the other warning: too few views per confident texel, issue 32 item 5)
+    warnings = [line for line in lines if "warning" in line and "of the surface" in line]
     assert len(warnings) == 1 and f"only {percent} of the surface" in warnings[0]
     assert "below 50%" in warnings[0]
 
@@ -394,8 +395,10 @@ def test_a_camera_whose_images_are_all_nan_is_one_line_of_ours(sphere_capture_di
     assert lines[0] == ("polarbssrdf: warning: camera 'cam01' (light 'light01') sees no texel "
                         "of frame 0: the remaining texels sample non-finite (NaN) pixels; "
                         "skipping it")
-    # three ring cameras leave most of the sphere unconfident: the other line says so
-    assert len(lines) == 2 and lines[1].startswith("polarbssrdf reconstruct: warning: static")
+    # three ring cameras leave most of the sphere unconfident: the second line says so, the
+    # third that the confident texels have too few views (issue 32, item 5)
+    assert len(lines) == 3 and lines[1].startswith("polarbssrdf reconstruct: warning: static")
+    assert "usable views per confident texel" in lines[2]
     assert capfd.readouterr() == ("", "")  # no UserWarning with its source line
 
 

@@ -73,3 +73,44 @@ def test_the_header_names_the_capture_passed_with_capture(run, capture_dir, tmp_
     header = page_path.read_text().split('<p class="meta">', 1)[1].split("</p>", 1)[0]
     assert f"of capture\n<code>{capture_dir.resolve()}</code>" in header
     assert "fitted on" not in header
+
+
+# --------------------------------------------------------------------------- item 5
+def test_too_few_views_per_texel_is_warned_by_reconstruct_and_atop_the_report(run, tmp_path):
+    """Three fitted cameras of a ring: six static maps lost to a constant and the bio std
+    covered a third of the errors, exit 0, without a word."""
+    warnings = [line for line in run["stderr"].splitlines()
+                if line.startswith("polarbssrdf reconstruct: warning: static frame 0: ")]
+    assert len(warnings) == 1, run["stderr"]
+    assert ("a median of 2 usable views per confident texel, fewer than the 4 the glossy "
+            "lobes need") in warnings[0]
+    assert "biophysical posterior std" not in warnings[0]  # no bio stage in this run
+
+    page_path = tmp_path / "report.html"
+    status, _, stderr = run_cli("report", run["outdir"], "--out", page_path, "--quiet")
+    assert status == 0, stderr
+    top = page_path.read_text().split("<nav>", 1)[0]  # above the first section
+    assert '<p class="warning" id="untrusted">' in top
+    assert "These maps and their uncertainty cannot be trusted" in top
+    assert "a median of 2 usable views per confident texel" in top
+
+
+def test_the_views_criterion_reads_the_views_from_the_confidence_map():
+    import numpy as np
+
+    from polarbssrdf.inverse.evaluation.trust import VIEWS_NEEDED, usable_views, views_check
+
+    assert VIEWS_NEEDED == 4  # rho_s, alpha_s, rho_ss, alpha_ss
+    views = np.array([[0, 2, 3, 4], [5, 8, 9, 12]])
+    confidence = np.minimum(1.0, views / 8.0)  # the static stage's min(1, n / 8)
+    np.testing.assert_array_equal(usable_views(confidence), np.minimum(views, 8))
+
+    def check(counts, valid=None):
+        return views_check(np.minimum(1.0, np.asarray(counts, float) / 8.0), valid)
+
+    assert check([[2, 2, 3, 0]])["median_views"] == 2 and not check([[2, 2, 3, 0]])["trusted"]
+    assert check([[3, 4, 5, 0]])["trusted"]  # median 4: enough
+    assert check([[12, 9, 3, 0]])["trusted"]  # full confidence counts as 8
+    on_mesh = np.array([[True, True, False, True]])
+    assert check([[2, 5, 2, 9]], on_mesh)["median_views"] == 5  # off the mesh: not counted
+    assert check([[0, 0, 0, 0]]) is None  # nothing confident: nothing to judge
