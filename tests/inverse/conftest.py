@@ -2,12 +2,25 @@
 
 The sphere at 64 x 64 pixels, 4 views, texture 32 and 4 spp renders in a few
 seconds; every capture is written under ``tmp_path_factory`` and never
-modified by a test (tests that need a changed capture copy it).
+modified by a test (tests that need a changed capture copy it). Each shared
+capture's files are hashed when it is made and again at the end of the
+session: a test that wrote into one fails there, naming the files.
+
+Which module uses which capture (a synthesis costs 10-20 s on the shared
+2-core machine, so modules share them rather than make their own):
+
+- ``sphere_capture_dir`` (analyser images, 64^2 px, T = 32): observations, run
+  inputs, config, ``reconstruct`` command, ``evaluate``;
+- ``sphere_raw_capture_dir`` (the same, raw mosaics): observations, run inputs,
+  ``evaluate``'s raw held-out re-render;
+- ``two_frame_sphere_dir`` (48^2 px, T = 16, 2 spp, 2 frames): stage plan,
+  result files protected.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import shutil
 
 import numpy as np
@@ -19,24 +32,64 @@ TINY = dict(object="sphere", views=4, resolution=64, texture=32, spp=4, seed=7)
 """Settings of the tiny synthetic captures (shared by the analyser and raw ones)."""
 
 
-def _synthesize(directory, **overrides):
+TWO_FRAMES = dict(object="sphere", views=4, resolution=48, texture=16, spp=2, frames=2)
+"""Settings of the two-frame sphere (stage plan, protected result files): T = 16 keeps their
+many 1-2 epoch fits cheap."""
+
+
+def _synthesize(directory, settings=TINY, bands=None):
     from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
 
     mi.set_variant("llvm_ad_mono_polarized")
-    synthesize(directory, SynthesisSettings(**{**TINY, **overrides}), progress=False)
+    synthesize(directory, SynthesisSettings(**settings), bands=bands, progress=False)
+    return directory
+
+
+def tree_hashes(directory):
+    """Relative path -> sha256 of every file under ``directory``."""
+    return {str(path.relative_to(directory)): hashlib.sha256(path.read_bytes()).hexdigest()
+            for path in sorted(directory.rglob("*")) if path.is_file()}
+
+
+@pytest.fixture(scope="session")
+def _shared_captures():
+    """Registry of the session's shared captures; at the end, each must be as it was made."""
+    made = {}
+    yield made
+    changed = {}
+    for directory, before in made.items():
+        after = tree_hashes(directory)
+        diff = sorted(k for k in before.keys() | after.keys() if before.get(k) != after.get(k))
+        if diff:
+            changed[str(directory)] = diff
+    assert not changed, f"a test modified a shared capture (copy it instead): {changed}"
+
+
+def _shared(made, directory, settings, bands=None):
+    _synthesize(directory, settings, bands)
+    made[directory] = tree_hashes(directory)
     return directory
 
 
 @pytest.fixture(scope="session")
-def sphere_capture_dir(tmp_path_factory):
+def sphere_capture_dir(tmp_path_factory, _shared_captures):
     """Directory of a tiny synthetic sphere capture, analyser images, frame 0, identity pose."""
-    return _synthesize(tmp_path_factory.mktemp("sphere_analyser") / "capture")
+    return _shared(_shared_captures, tmp_path_factory.mktemp("sphere_analyser") / "capture",
+                   TINY)
 
 
 @pytest.fixture(scope="session")
-def sphere_raw_capture_dir(tmp_path_factory):
+def sphere_raw_capture_dir(tmp_path_factory, _shared_captures):
     """The same capture (same seed) recorded as noisy IMX250MZR raw mosaics."""
-    return _synthesize(tmp_path_factory.mktemp("sphere_raw") / "capture", raw=True)
+    return _shared(_shared_captures, tmp_path_factory.mktemp("sphere_raw") / "capture",
+                   {**TINY, "raw": True})
+
+
+@pytest.fixture(scope="session")
+def two_frame_sphere_dir(tmp_path_factory, _shared_captures):
+    """A two-frame sphere, 48 x 48 px, T = 16, 2 spp (analyser images)."""
+    return _shared(_shared_captures, tmp_path_factory.mktemp("two_frames") / "capture",
+                   TWO_FRAMES)
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,7 @@
 """``polarbssrdf reconstruct``: outputs, refusals, resume and overwrite, one-line errors.
 
-One tiny synthetic sphere (4 views, 48 x 48 px, T = 32) per module and 2
-epochs per run: the whole module takes well under a minute.
+The session's tiny synthetic sphere (4 views, 64 x 64 px, T = 32; shared with the other
+inverse tests) and 2 epochs per run: the whole module takes well under a minute.
 """
 
 from __future__ import annotations
@@ -13,13 +13,10 @@ import shutil
 import numpy as np
 import pytest
 
-import mitsuba as mi
-
 from helpers import run_cli
 from polarbssrdf.errors import EXIT_INTERRUPTED, EXIT_USER_ERROR
 
-T = 32
-SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=4)
+T = 32  # the texture size of the shared capture (conftest.TINY)
 
 
 def tree_hashes(directory):
@@ -32,13 +29,9 @@ def tree_hashes(directory):
 
 
 @pytest.fixture(scope="module")
-def capture_dir(tmp_path_factory):
-    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
-
-    mi.set_variant("llvm_ad_mono_polarized")
-    directory = tmp_path_factory.mktemp("reconstruct") / "capture"
-    synthesize(directory, SynthesisSettings(**SETTINGS), progress=False)
-    return directory
+def capture_dir(sphere_capture_dir):
+    """The session's tiny sphere (tests/inverse/conftest.py); tests that change it copy it."""
+    return sphere_capture_dir
 
 
 @pytest.fixture(scope="module")

@@ -1,9 +1,9 @@
 """Issue 32: what ``reconstruct`` writes is safe from ``--out``, from truncated checkpoints,
 from SIGTERM, and from the Python API's string arguments.
 
-One tiny synthetic sphere (4 views, 48 x 48 px, T = 16) and one 2-epoch static run per
-module; the refusals are checked before any work, so the module takes seconds past its
-fixtures.
+The session's two-frame tiny sphere (4 views, 48 x 48 px, T = 16; frame 0 is fitted) and
+one 2-epoch static run per module; the refusals are checked before any work, so the module
+takes seconds past its fixtures.
 """
 
 from __future__ import annotations
@@ -13,24 +13,17 @@ import json
 
 import pytest
 
-import mitsuba as mi
-
 from helpers import run_cli
 from polarbssrdf.errors import EXIT_USER_ERROR
 
-T = 16
-SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=2)
 CONFIG = {"patch_size": 16, "min_steps_per_epoch": 1}
 
 
 @pytest.fixture(scope="module")
-def capture_dir(tmp_path_factory):
-    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
-
-    mi.set_variant("llvm_ad_mono_polarized")
-    directory = tmp_path_factory.mktemp("protected") / "capture"
-    synthesize(directory, SynthesisSettings(**SETTINGS), progress=False)
-    return directory
+def capture_dir(two_frame_sphere_dir):
+    """The session's two-frame sphere (tests/inverse/conftest.py; the static stage fits frame
+    0), shared with test_stage_plan.py; never written to."""
+    return two_frame_sphere_dir
 
 
 @pytest.fixture(scope="module")

@@ -17,21 +17,15 @@ from polarbssrdf.errors import EXIT_USER_ERROR
 
 T = 16
 SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=2)
+"""The three-band sphere's settings: those of the session's two-frame sphere
+(``two_frame_sphere_dir``, tests/inverse/conftest.py), one frame."""
 CONFIG = {"patch_size": 16, "min_steps_per_epoch": 1}
 
 
-def _synthesize(directory, bands=None, **overrides):
-    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
-
-    mi.set_variant("llvm_ad_mono_polarized")
-    synthesize(directory, SynthesisSettings(**{**SETTINGS, **overrides}), bands=bands,
-               progress=False)
-    return directory
-
-
 @pytest.fixture(scope="module")
-def two_frame_capture(tmp_path_factory):
-    return _synthesize(tmp_path_factory.mktemp("two_frames") / "capture", frames=2)
+def two_frame_capture(two_frame_sphere_dir):
+    """The session's two-frame sphere (tests/inverse/conftest.py); never written to."""
+    return two_frame_sphere_dir
 
 
 @pytest.fixture(scope="module")
@@ -85,8 +79,13 @@ def test_a_later_dynamic_stage_starts_from_the_runs_static_frame(two_frame_captu
 def three_band_capture(tmp_path_factory):
     from polarbssrdf.spectral import shipped_default_bands
 
-    return _synthesize(tmp_path_factory.mktemp("three_bands") / "capture",
-                       bands=shipped_default_bands()[:3])
+    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    directory = tmp_path_factory.mktemp("three_bands") / "capture"
+    synthesize(directory, SynthesisSettings(**SETTINGS), bands=shipped_default_bands()[:3],
+               progress=False)
+    return directory
 
 
 def test_a_stage_the_capture_cannot_feed_is_refused_before_the_first_starts(

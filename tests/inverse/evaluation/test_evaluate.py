@@ -18,19 +18,14 @@ import mitsuba as mi
 from helpers import run_cli
 from polarbssrdf.errors import EXIT_USER_ERROR
 
-T = 32
-SETTINGS = dict(object="sphere", views=4, resolution=48, texture=T, spp=4)
+T = 32  # the texture size of the shared capture (conftest.TINY)
 RESULT_CHANNELS = ("eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement")
 
 
 @pytest.fixture(scope="module")
-def capture_dir(tmp_path_factory):
-    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
-
-    mi.set_variant("llvm_ad_mono_polarized")
-    directory = tmp_path_factory.mktemp("evaluate") / "capture"
-    synthesize(directory, SynthesisSettings(**SETTINGS), progress=False)
-    return directory
+def capture_dir(sphere_capture_dir):
+    """The session's tiny sphere (tests/inverse/conftest.py); tests that change it copy it."""
+    return sphere_capture_dir
 
 
 @pytest.fixture(scope="module")
@@ -224,16 +219,13 @@ def test_evaluate_errors_are_one_line(case, capture_dir, truth_result_maps, tmp_
     assert expected in stderr
 
 
-def test_holdout_of_a_raw_capture_is_compared_in_radiance(tmp_path):
+def test_holdout_of_a_raw_capture_is_compared_in_radiance(sphere_raw_capture_dir):
     """Raw mosaics are calibrated and demosaicked: the truth re-renders within sensor noise."""
     from polarbssrdf.io import load_capture
     from polarbssrdf.inverse.evaluation.rerender import holdout_errors
-    from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
 
     mi.set_variant("llvm_ad_mono_polarized")
-    directory = tmp_path / "raw"
-    synthesize(directory, SynthesisSettings(**SETTINGS, raw=True), progress=False)
-    capture = load_capture(directory, check_images=False)
+    capture = load_capture(sphere_raw_capture_dir, check_images=False)
     truth = capture.truth_maps(0)
     errors = holdout_errors(capture, truth, ["cam00"])["mean"]
     assert errors["relative_rmse_I_sss"] < 0.06
