@@ -278,6 +278,79 @@ def headline_figures(evaluation) -> dict:
     return figures
 
 
+def bio_notes_of(result_dir) -> dict:
+    """``{frame: bio_map_notes}`` of every registered biophysical map file of a result
+    (:func:`polarbssrdf.inverse.evaluation.trust.bio_map_notes`; frames as strings)."""
+    # deferred with the evaluation (see run_demo)
+    from polarbssrdf.inverse.evaluation.trust import bio_map_notes
+    from polarbssrdf.inverse.results.directory import read_result
+    from polarbssrdf.io.exr import read_exr
+
+    notes = {}
+    for record in read_result(result_dir).maps:
+        if record["stage"] == "bio":
+            found = bio_map_notes(*read_exr(Path(result_dir) / record["path"]))
+            if found:
+                notes[str(record["frame"])] = found
+    return notes
+
+
+CONSTANT_PARTNER = (" MAE", " MAE of the best constant map")
+"""A headline MAE's key -> the key of the best constant map's MAE beside it (with
+" (mean over frames)" dropped)."""
+
+
+def closing_lines(metrics) -> list[str]:
+    """The headline figures as the demo prints them: each MAE beside the best constant
+    map's and marked, as the report marks it, when it is no better; each 2-std coverage
+    beside its ideal; then every map the report marks, and the biophysical maps that are
+    held or prior-dominated (:func:`polarbssrdf.inverse.evaluation.trust.bio_map_notes`,
+    ``metrics["bio_notes"]``)."""
+    # deferred: the scores' module imports the renderer (seconds); the parser does not need it
+    from polarbssrdf.inverse.evaluation.scores import (
+        COVERAGE_IDEAL,
+        LOSES,
+        loses_to_constant,
+        losing_maps,
+    )
+    from polarbssrdf.inverse.evaluation.trust import unmeasured_summary
+
+    headline = metrics.get("headline") or {}
+    constant_of = {}  # a map's headline key -> the best constant map's key beside it
+    for key in headline:
+        constant_key = key.replace(*CONSTANT_PARTNER, 1).replace(" (mean over frames)", "")
+        if CONSTANT_PARTNER[1] not in key and constant_key != key and constant_key in headline:
+            constant_of[key] = constant_key
+    lines = []
+    for key, value in headline.items():
+        if key in constant_of.values():
+            continue  # printed beside its map's figure
+        line = f"  {key}: {value}"
+        if key in constant_of:
+            constant = headline[constant_of[key]]
+            line += f" (best constant map: {constant})"
+            if loses_to_constant(value, constant):
+                line += f"  <- {LOSES}"
+        if "within 2 std" in key:
+            line += f" (ideal {COVERAGE_IDEAL:.3f})"
+        lines.append(line)
+    losers = losing_maps(metrics.get("evaluation"))
+    marked = [f"{name} (static)" for name in losers["static"]]
+    by_map = {}
+    for frame, names in sorted(losers["bio"].items(), key=lambda item: int(item[0])):
+        for name in names:
+            by_map.setdefault(name, []).append(frame)
+    marked += [f"{name} (bio, frame{'s' if len(frames) > 1 else ''} {', '.join(frames)})"
+               for name, frames in by_map.items()]
+    if marked:
+        lines.append(f"  {LOSES} (marked in the report): {', '.join(marked)}")
+    said = unmeasured_summary(metrics.get("bio_notes") or {})
+    if said:
+        lines.append(f"  bio maps the bands do not measure (said beside them in the "
+                     f"report): {said}")
+    return lines
+
+
 def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, workers=None,
              scheduler=None, quiet=False) -> dict:
     """Run the demo into ``outdir``; returns the contents of ``OUTDIR/metrics.json``."""
@@ -346,6 +419,7 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
     metrics = {"schema": METRICS_SCHEMA, "schema_version": SCHEMA_VERSION,
                "settings": asdict(settings), "holdout": [settings.holdout],
                "headline": headline_figures(evaluation),
+               "bio_notes": bio_notes_of(result_dir),
                "seconds": {**{k: round(v, 2) for k, v in seconds.items()},
                            "stages": stage_seconds, "reused": reused},
                "evaluation": evaluation}
@@ -428,8 +502,8 @@ def run(args) -> int:
     if metrics["seconds"].get("reused"):
         print(f"  reused from the earlier run: {', '.join(metrics['seconds']['reused'])} "
               "(metrics.json keeps its times)")
-    for name, value in metrics["headline"].items():
-        print(f"  {name}: {value}")
+    for line in closing_lines(metrics):
+        print(line)
     print(f"  report: {metrics['report']}")
     print(f"  metrics: {Path(args.outdir) / 'metrics.json'}; maps: "
           f"{Path(args.outdir) / 'result'}")

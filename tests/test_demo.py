@@ -1,7 +1,8 @@
 """``polarbssrdf demo`` end to end at a tiny size, the report, and reconstruct's resume per stage.
 
 One tiny demo (4 views, 2 frames, 32^2 texels, 5 epochs) runs once per
-session; the tests read its directory and never modify it.
+session; the tests read its directory and never modify it (the resume test
+resumes a copy).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import time
 import numpy as np
 import pytest
 
-from helpers import default_sigint
+from helpers import default_sigint, run_cli
 
 TINY = dict(views=4, frames=2, texture=32, resolution=96, spp=2, iterations=5)
 IMAGE = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
@@ -103,6 +104,33 @@ def test_every_stage_is_listed_in_result_json(demo_dir):
     assert listed == {("static", 0), ("dynamic", 1), ("bio", 0), ("bio", 1)}
     for record in result["maps"]:
         assert (demo_dir / "result" / record["path"]).is_file()
+
+
+def test_resuming_a_finished_demo_keeps_the_times_of_the_run_that_did_the_work(demo_dir,
+                                                                                tmp_path):
+    """Issue 32, item 11: ``demo --resume`` on a finished demo keeps the times of the run
+    that did the work, and says what it reused.
+
+    On a copy of the session's demo (a resume rewrites metrics.json, which the other tests
+    read); it was test_demo_resume.py's own 1-epoch demo, run once more just for this.
+    """
+    outdir = tmp_path / "demo"
+    shutil.copytree(demo_dir, outdir)
+    first = json.loads((outdir / "metrics.json").read_text())["seconds"]
+    timings = json.loads((outdir / "result" / "timings.json").read_text())
+
+    options = [f"--{k}={v}" for k, v in TINY.items()]
+    status, stdout, stderr = run_cli("demo", outdir, *options, "--resume")
+    assert status == 0, stderr
+    again = json.loads((outdir / "metrics.json").read_text())["seconds"]
+    assert again["stages"] == first["stages"] == timings
+    assert json.loads((outdir / "result" / "timings.json").read_text()) == timings
+    assert again["synth"] == first["synth"] and again["reconstruct"] == first["reconstruct"]
+    assert again["reused"] == ["synth", "reconstruct"]
+    assert "reused from the earlier run: synth, reconstruct" in stdout
+    assert "reused the finished synth and reconstruct" in stderr
+    # reconstruct's own summary says which stages it found done
+    assert stdout.count("reused the earlier run's fit") == 3
 
 
 def test_demo_refuses_a_foreign_directory_and_other_settings(demo_dir, tmp_path, capsys):
@@ -219,6 +247,65 @@ def test_report_renders_in_a_real_browser(demo_dir, tmp_path):
     damaged = tmp_path / "damaged.html"
     damaged.write_text(page.replace(payload, base64.b64encode(b"not a PNG").decode(), 1))
     assert _images_broken(damaged) == (shown, 1)
+
+
+POSITIONS = """<script>window.addEventListener("load", function () {
+  var found = {}, wanted = {untrusted: "p.warning#untrusted", nav: "nav",
+    coverage: "p.coverage", plusminus: "p.plusminus", calibration: "#bio ~ h3",
+    coverage_table: "table"};
+  for (var key in wanted) {
+    var all = document.querySelectorAll(wanted[key]), hit = null;
+    for (var i = 0; i < all.length; i++) {
+      if (key === "calibration" && all[i].textContent !== "Posterior calibration") continue;
+      if (key === "coverage_table" && all[i].textContent.indexOf("ideal") < 0) continue;
+      hit = all[i]; break;
+    }
+    if (hit) { var r = hit.getBoundingClientRect();
+      found[key] = [Math.round(r.top + window.scrollY), Math.round(r.height)]; }
+  }
+  document.body.setAttribute("data-positions", JSON.stringify(found));
+});</script></body>"""
+"""Injected into a copy of a report: records where the uncertainty pieces landed."""
+
+
+def test_the_uncertainty_pieces_render_in_a_real_browser(demo_dir, tmp_path):
+    """Issue 32, items 4 and 5: the tiny demo fits 3 of its 4 cameras, so the page says at
+    its top that the maps and std cannot be trusted; the 2-std coverage stands beside its
+    ideal, the region table says what its +- is, and the figures that carry the z-score
+    maps and the calibration curve against k decode."""
+    import html as html_module
+    from PIL import Image
+
+    page = (demo_dir / "report.html").read_text()
+    probe = tmp_path / "probe.html"
+    probe.write_text(page.replace("</body>", POSITIONS, 1))
+    dom = _chromium("--window-size=1200,3000", "--dump-dom", probe.resolve().as_uri()).stdout
+    found = re.search(r'data-positions="([^"]*)"', dom)
+    assert found, "the probe script did not run in the browser"
+    positions = json.loads(html_module.unescape(found.group(1)))
+    for key in ("untrusted", "nav", "coverage", "plusminus", "calibration", "coverage_table"):
+        assert key in positions and positions[key][1] > 0, (key, positions)
+    assert positions["untrusted"][0] < positions["nav"][0]  # at the top, above every section
+    assert positions["calibration"][0] < positions["coverage"][0] < positions["plusminus"][0]
+    text = re.sub(r"<[^>]+>", " ", dom)
+    assert "cannot be trusted" in text and "fewer than the 4 the glossy lobes need" in text
+    assert "(ideal 0.954)" in text and "mean \u00b1 spatial std" in text
+
+    # the chromophore figures carry five panels (the z-score last), the calibration plot is
+    # drawn against k: both among the images the browser decoded
+    figures = {alt: png for alt, png in zip(re.findall(r'<img src="data:image/png;base64,'
+                                                     r'[A-Za-z0-9+/=]+" alt="([^"]*)"', page),
+                                          _images(page))}
+    with Image.open(io.BytesIO(figures["C_m frame 0"])) as image:
+        assert image.width > 4.5 * image.height  # 4 panels: 4.4
+    assert "posterior calibration" in figures
+    shot = tmp_path / "top.png"
+    _chromium("--window-size=1200,900", f"--screenshot={shot}", (demo_dir / "report.html")
+              .resolve().as_uri())
+    pixels = np.asarray(Image.open(shot).convert("RGB"), dtype=np.float64)
+    # the warning's orange-tinted box (#fff4e5) fills part of the first screen
+    tint = (np.abs(pixels - [255, 244, 229]).max(axis=-1) < 4).mean()
+    assert tint > 0.02, tint
 
 
 # --------------------------------------------------------------------------- interruption

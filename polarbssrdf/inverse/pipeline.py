@@ -38,7 +38,13 @@ from polarbssrdf.inverse.biophysical.stage import run_bio_stage
 from polarbssrdf.inverse.config import DEFAULT_TEXTURE, run_config
 from polarbssrdf.inverse.evaluation.rerender import DEFAULT_SPP
 from polarbssrdf.inverse.evaluation.scores import evaluate_result, truth_capture
-from polarbssrdf.inverse.evaluation.trust import untrusted_text, views_check
+from polarbssrdf.inverse.evaluation.trust import (
+    PRIOR_DOMINATED_VARIANCE,
+    bio_map_notes,
+    unmeasured_summary,
+    untrusted_text,
+    views_check,
+)
 from polarbssrdf.inverse.frames import check_scheduler
 from polarbssrdf.inverse.polarimetric.dynamic import run_dynamic_stage, static_frame_of
 from polarbssrdf.inverse.polarimetric.config import DEFAULT_DYNAMIC_ITERATIONS
@@ -58,6 +64,7 @@ from polarbssrdf.inverse.results.directory import (
     read_result,
     read_stage_maps,
     record_settings,
+    stage_map_path,
     record_stage_seconds,
 )
 from polarbssrdf.io import load_capture
@@ -375,6 +382,24 @@ def say_confidence(stage, summaries, progress=True) -> None:
                   "of the object raise it", file=sys.stderr, flush=True)
 
 
+def unmeasured_text(outdir, frames) -> str:
+    """The end of the bio stage's line: the chromophore maps of ``frames`` held at their
+    face mean or prior-dominated (:func:`~polarbssrdf.inverse.evaluation.trust
+    .bio_map_notes`), "" when every fitted map is measured. A later frame holding the first
+    frame's melanin is the stage's design and not repeated here."""
+    notes = {}
+    for frame in frames:
+        try:
+            notes[frame] = bio_map_notes(*read_exr(Path(outdir) / stage_map_path("bio",
+                                                                                 int(frame))))
+        except (OSError, ValueError):  # a frame that failed: its own line says so
+            continue
+    said = unmeasured_summary(notes)
+    return (f"; not measured by the bands (posterior std above "
+            f"{PRIOR_DOMINATED_VARIANCE ** 0.5:.2f} of the prior spread, or held): {said}"
+            if said else "")
+
+
 def warn_if_untrusted(outdir, frame) -> dict | None:
     """Warn on stderr (also with ``--quiet``) when the static frame's maps, and the
     biophysical std if the run has one, cannot be trusted: too few usable views per
@@ -547,7 +572,8 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
             kinds = sorted(set(summary["source_stages"].values()))
             lines.append(f"  bio: {len(summary['frames'])} frame(s) from the "
                          f"{' and '.join(kinds)} maps -> {outdir / 'bio'} (maps, previews, "
-                         f"summary.json; {_seconds_text(stage, reused, stage_start)})")
+                         f"summary.json; {_seconds_text(stage, reused, stage_start)})"
+                         + unmeasured_text(outdir, summary["frames"]))
         if stage not in reused:  # timings.json keeps the seconds of the run that did the work
             record_stage_seconds(outdir, {stage: time.perf_counter() - stage_start})
     if {"static", "bio"} & set(stages):

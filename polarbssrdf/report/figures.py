@@ -10,6 +10,7 @@ are drawn as background.
 from __future__ import annotations
 
 import io
+import textwrap
 
 import matplotlib
 import numpy as np
@@ -77,10 +78,21 @@ def _map_axes(axes, values, title, vmin, vmax, cmap, unit, figure):
     bar.ax.tick_params(labelsize=7)
 
 
+Z_LIMIT = 3.0
+"""The z-score panel's colour scale runs from -3 to 3 std: a calibrated posterior leaves
+0.3% of the texels beyond it (saturated), 4.6% beyond 2."""
+
+
 def map_comparison_png(name, recovered, truth, mask, unit="1", relative=False,
-                       std=None) -> bytes:
-    """One map: recovered | truth (one colour scale) | error [| posterior std], with colour
-    bars and units.
+                       std=None, note=None) -> bytes:
+    """:func:`map_comparison_figure` as PNG bytes."""
+    return _png(map_comparison_figure(name, recovered, truth, mask, unit, relative, std, note))
+
+
+def map_comparison_figure(name, recovered, truth, mask, unit="1", relative=False,
+                          std=None, note=None):
+    """One map: recovered | truth (one colour scale) | error [| posterior std [| error / std]],
+    with colour bars and units (a :class:`~matplotlib.figure.Figure`).
 
     Parameters
     ----------
@@ -97,13 +109,17 @@ def map_comparison_png(name, recovered, truth, mask, unit="1", relative=False,
         Draw the error as ``(recovered - truth) / truth`` in percent (albedos)
         rather than as a difference in ``unit``.
     std : (T, T) array, optional
-        The map's posterior standard deviation (same unit), drawn last on its
-        own scale from 0.
+        The map's posterior standard deviation (same unit), drawn on its own
+        scale from 0; with ``truth`` also the z-score ``(recovered - truth) / std``
+        (unitless, -3 to 3: a calibrated std leaves 95% of the texels within +-2).
+    note : str, optional
+        A line under the panels (e.g. that the map was held at its face mean).
     """
     estimate = _masked(recovered, mask)
-    columns = (1 if truth is None else 3) + (std is not None)
+    with_z = std is not None and truth is not None
+    columns = (1 if truth is None else 3) + (std is not None) + with_z
     figure = _figure(MAP_PANEL_INCHES * (1.15 if columns == 1 else 1.1 * columns),
-                     MAP_PANEL_INCHES)
+                     MAP_PANEL_INCHES + (0.3 if note else 0.0))
     panels = list(np.atleast_1d(figure.subplots(1, columns)))
     if truth is None:
         low, high = _robust_range(estimate)
@@ -133,7 +149,16 @@ def map_comparison_png(name, recovered, truth, mask, unit="1", relative=False,
                 else 0.0)
         _map_axes(panels.pop(0), spread, f"{name}: posterior std", 0.0,
                   high if high > 0 else 1e-6, "magma", unit, figure)
-    return _png(figure)
+    if with_z:
+        z = (_masked(recovered, mask) - _masked(truth, mask)) / np.ma.masked_less_equal(
+            _masked(std, mask), 0.0)
+        within = float(np.mean(np.abs(np.ma.compressed(z)) < 2.0)) if np.ma.count(z) else \
+            float("nan")
+        _map_axes(panels.pop(0), z, f"error / std: {100 * within:.0f}% within 2 (ideal 95%)",
+                  -Z_LIMIT, Z_LIMIT, "RdBu_r", "z-score (error / posterior std)", figure)
+    if note:
+        figure.suptitle(note, fontsize=8, color="#b00", y=0.02, va="bottom")
+    return figure
 
 
 def normal_rgb(normal, mask):
@@ -221,8 +246,11 @@ def changes_over_frames_png(name, recovered, truth, mask, unit="1") -> bytes:
     return _png(figure)
 
 
-def region_series_png(parameters, recovered, truth, units) -> bytes:
+def region_series_png(parameters, recovered, truth, units, notes=None) -> bytes:
     """Mean of each parameter per region over the frames: recovered (solid) and truth (dashed).
+
+    ``notes``: ``{parameter: text}`` shown under a panel's title (e.g. that the map was
+    held at its face mean or is prior-dominated).
 
     ``recovered``, ``truth``: a region summary
     (:func:`polarbssrdf.inverse.biophysical.stage.region_summary`) each; ``truth`` may be None.
@@ -252,6 +280,10 @@ def region_series_png(parameters, recovered, truth, units) -> bytes:
         axes.set_title(f"{parameter}, region mean" + (" (solid: recovered, dashed: truth)"
                                                       if truth is not None else ""),
                        fontsize=9)
+        if notes and notes.get(parameter):
+            axes.text(0.02, 0.98, textwrap.fill(notes[parameter], 48),
+                      transform=axes.transAxes, ha="left", va="top", fontsize=7,
+                      color="#b00", bbox=dict(facecolor="white", alpha=0.85, edgecolor="none"))
         axes.grid(alpha=0.3)
         if 1 < len(frames) <= 20:
             axes.set_xticks(frames)
@@ -342,27 +374,43 @@ def rerender_png(camera, band, observed, rendered, mask, unit=RADIANCE_UNIT) -> 
     return _png(figure)
 
 
-def calibration_png(curves, ks=COVERAGE_K) -> bytes:
-    """Observed against expected coverage of the posterior std, one line per chromophore.
+def calibration_png(curves, ks=COVERAGE_K, notes=None) -> bytes:
+    """:func:`calibration_figure` as PNG bytes."""
+    return _png(calibration_figure(curves, ks, notes))
 
-    ``curves``: ``{name: (fractions, texels)}`` of :func:`coverage_fractions`.
-    Points above the diagonal: the std is too large (errors smaller than
-    claimed); below: too small (overconfident).
+
+def calibration_figure(curves, ks=COVERAGE_K, notes=None):
+    """Observed coverage of the posterior std against k, one line per chromophore, beside
+    the coverage a calibrated Gaussian std gives, ``erf(k / sqrt 2)`` (dashed).
+
+    ``curves``: ``{name: (fractions, texels)}`` of :func:`coverage_fractions`;
+    ``notes``: ``{name: text}`` added to a chromophore's legend entry (e.g. "held at
+    its face mean"). The horizontal axis is k itself, to a little beyond the largest k
+    (3), so the points at 2-3 std, where a calibrated std covers 95-99.7%, are spread
+    out instead of crowded against 1. Points above the dashed curve: the std is too
+    large (errors smaller than claimed); below: too small (overconfident).
     """
-    expected = expected_coverage(ks)
-    figure = _figure(5.2, 4.4)
+    ks = np.asarray(ks, float)
+    figure = _figure(5.8, 4.4 + 0.16 * (len(curves) + 1))
     axes = figure.add_subplot(1, 1, 1)
-    axes.plot([0, 1], [0, 1], color="0.5", lw=1, ls="--", label="calibrated")
+    fine = np.linspace(0.0, ks[-1] + 0.25, 200)
+    axes.plot(fine, expected_coverage(fine), color="0.35", lw=1.2, ls="--",
+              label="calibrated: erf(k / sqrt 2)")
+    ideal = float(expected_coverage((2.0,))[0])
+    axes.axvline(2.0, color="0.6", lw=0.8, ls=":")
+    axes.text(2.03, 0.02, f"k = 2: ideal {ideal:.3f}", fontsize=7, color="0.3")
     colours = matplotlib.colormaps["tab10"]
     for index, (name, (fractions, texels)) in enumerate(curves.items()):
-        axes.plot(expected, fractions, "o-", ms=3.5, lw=1.4, color=colours(index % 10),
-                  label=f"{name} ({texels:,} texels)")
-    axes.set_xlim(0, 1)
-    axes.set_ylim(0, 1)
-    axes.set_aspect("equal")
-    axes.set_xlabel(f"expected coverage erf(k / sqrt 2), k = {ks[0]:g} .. {ks[-1]:g}")
-    axes.set_ylabel("observed fraction with |recovered - truth| < k std")
+        extra = f", {notes[name]}" if notes and notes.get(name) else ""
+        axes.plot(ks, fractions, "o-", ms=3.5, lw=1.4, color=colours(index % 10),
+                  label=f"{name} ({texels:,} texels{extra})")
+    axes.set_xlim(0.0, ks[-1] + 0.25)
+    axes.set_ylim(0.0, 1.04)
+    axes.set_xticks(np.arange(0.0, ks[-1] + 0.01, 0.5))
+    axes.set_xlabel(f"k (multiples of the posterior std), {ks[0]:g} to {ks[-1]:g}")
+    axes.set_ylabel("fraction of texels with |recovered - truth| < k std")
     axes.set_title("posterior calibration", fontsize=10)
     axes.grid(alpha=0.3)
-    axes.legend(fontsize=7, loc="lower right")
-    return _png(figure)
+    # below the axes, never over the curves (their low ends sit in the lower right)
+    axes.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
+    return figure

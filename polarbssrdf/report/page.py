@@ -48,13 +48,17 @@ from polarbssrdf.inverse.evaluation.rerender import captured_view, render_view, 
 from polarbssrdf.inverse.evaluation.scores import (  # noqa: F401 (losing_maps: the page's API)
     COVERAGE_IDEAL,
     LOSES,
-    bio_coverage,
     evaluate_stages,
     loses_to_constant,
     losing_maps,
     truth_capture,
 )
-from polarbssrdf.inverse.evaluation.trust import untrusted_text, views_check
+from polarbssrdf.inverse.evaluation.trust import (
+    bio_map_notes,
+    notes_by_map,
+    untrusted_text,
+    views_check,
+)
 from polarbssrdf.inverse.polarimetric.fit import LOW_CONFIDENT_FRACTION
 from polarbssrdf.inverse.results.directory import REPORT_FILE, RESULT_FILE, read_result
 from polarbssrdf.io.atomic import atomic_write_text
@@ -155,6 +159,8 @@ class ReportData:
     """:func:`polarbssrdf.inverse.evaluation.scores.evaluate_stages` (None without truth)."""
     no_truth_reason: str | None = None
     """Why the report is without ground truth (None when it has truth)."""
+    metadata: dict = field(default_factory=dict)
+    """``{stage: {frame: metadata}}`` of the map files read so far (:func:`map_metadata`)."""
 
     @property
     def bands(self):
@@ -204,7 +210,8 @@ def load_report_data(result_dir, capture=None, evaluation=None, progress=None) -
     for record in manifest.maps:
         paths.setdefault(record["stage"], {})[int(record["frame"])] = result_dir / record["path"]
     for stage, files in paths.items():
-        data.maps[stage] = LazyFrames(files, lambda frame, files=files: read_exr(files[frame])[0])
+        data.maps[stage] = LazyFrames(files, _channels_reader(files,
+                                                              data.metadata.setdefault(stage, {})))
     data.no_truth_reason = no_truth_reason(capture, manifest.texture_size)
     if data.no_truth_reason is None:
         data.truth = LazyFrames([r.frame for r in capture.truth.maps], capture.truth_maps)
@@ -217,6 +224,26 @@ def load_report_data(result_dir, capture=None, evaluation=None, progress=None) -
         data.evaluation = evaluation if evaluation is not None else evaluate_stages(
             result_dir, capture, holdout=False)
     return data
+
+
+def _channels_reader(files, metadata):
+    """``frame -> channels`` of ``files``; each file's metadata is kept in ``metadata``
+    (small: a map file's JSON header), so a frame is read once for both."""
+    def read(frame):
+        channels, header = read_exr(files[frame])
+        metadata[frame] = header or {}
+        return channels
+    return read
+
+
+def map_metadata(data, stage, frame) -> dict:
+    """The JSON metadata of ``stage``'s map file of ``frame`` ({} when it has none)."""
+    if frame not in data.maps.get(stage, {}):
+        return {}
+    known = data.metadata.get(stage, {})
+    if frame not in known:
+        data.maps[stage][frame]  # reading the frame records its metadata
+    return known.get(frame, {})
 
 
 def no_truth_reason(capture, texture_size) -> str | None:
@@ -405,6 +432,21 @@ def _bio_panels(data, frame, maps, truth):
     return panels
 
 
+def bio_notes(data, frame) -> dict:
+    """:func:`~polarbssrdf.inverse.evaluation.trust.bio_map_notes` of the bio map file of
+    ``frame``: the chromophores held (at their face mean, or at the first frame's map) or
+    prior-dominated, on the surface texels."""
+    maps = data.maps.get("bio", {})
+    if frame not in maps:
+        return {}
+    channels = dict(maps[frame])
+    valid = np.asarray(data.atlas.valid, bool) if data.atlas is not None and \
+        getattr(data.atlas, "valid", None) is not None else None
+    if valid is not None:  # only the surface counts: off the mesh the std is 0 or the prior's
+        channels["flagged"] = np.where(valid, np.asarray(channels.get("flagged", 0.0)), 1.0)
+    return bio_map_notes(channels, map_metadata(data, "bio", frame))
+
+
 def calibration_curves(data, frames):
     """``{chromophore: (fractions, texels)}`` of :func:`coverage_fractions` over ``frames``
     pooled: only chromophores whose maps carry ``<name>_std`` and frames with truth."""
@@ -425,18 +467,31 @@ def calibration_curves(data, frames):
     return {name: (total / count, count) for name, (total, count) in pooled.items()}
 
 
+def coverage_at_two_std(curves) -> dict:
+    """``{chromophore: fraction within 2 std}`` of :func:`calibration_curves`' curves."""
+    at_two = COVERAGE_K.index(2.0)
+    return {name: float(fractions[at_two]) for name, (fractions, _) in curves.items()}
+
+
 def calibration_html(data, frames) -> str:
-    """The calibration plot of the posterior std (with truth and ``*_std`` channels), or ""."""
+    """The calibration plot of the posterior std (with truth and ``*_std`` channels), or "";
+    the 2-std coverage of every chromophore beside its ideal, and in the legend what
+    :func:`bio_notes` says of a map (held, prior-dominated) and in which frames."""
     curves = calibration_curves(data, frames)
     if not curves:
         return ""
+    notes = notes_by_map({frame: bio_notes(data, frame) for frame in frames})
+    coverage = ", ".join(f"{name} {value:.3f}"
+                         for name, value in coverage_at_two_std(curves).items())
     return ("<h3>Posterior calibration</h3><p>For each chromophore, the fraction of surface "
-            "texels (on the mesh, not flagged; all frames with truth) whose error "
+            "texels (on the mesh, not flagged; all frames with truth pooled) whose error "
             "|recovered - truth| is below k times the posterior standard deviation, against "
-            "the fraction erf(k / sqrt 2) a Gaussian posterior of that width would give, "
-            f"k = {COVERAGE_K[0]:g} to {COVERAGE_K[-1]:g}. Above the diagonal the std is too "
-            "large, below it too small (overconfident).</p>"
-            + _image(calibration_png(curves), "posterior calibration"))
+            "the fraction erf(k / sqrt 2) a Gaussian posterior of that width would give "
+            f"(dashed), k = {COVERAGE_K[0]:g} to {COVERAGE_K[-1]:g}. Above the dashed curve "
+            "the std is too large, below it too small (overconfident).</p>"
+            f'<p class="coverage">Within 2 std: {html.escape(coverage)} '
+            f"(ideal {COVERAGE_IDEAL:.3f}).</p>"
+            + _image(calibration_png(curves, notes=notes), "posterior calibration"))
 
 
 def biophysical_section(data) -> str:
@@ -453,10 +508,16 @@ def biophysical_section(data) -> str:
         truth = data.truth.get(frame)
         parts.append(f"<h3>Frame {frame}</h3>")
         figures, singles = [], []
+        notes = bio_notes(data, frame)
         for name, values, reference, mask, unit, std in _bio_panels(data, frame, maps, truth):
             has_std |= std is not None
-            image = _image(map_comparison_png(name, values, reference, mask, unit, std=std),
+            note = notes.get(name)
+            image = _image(map_comparison_png(name, values, reference, mask, unit, std=std,
+                                              note=f"{name}: {note['label']}" if note else None),
                            f"{name} frame {frame}")
+            if note:
+                image = (f'<p class="held">{html.escape(name)}, frame {frame}: '
+                         f"{html.escape(note['text'])}.</p>" + image)
             why = losers.get(str(frame), {}).get(name)
             if why:
                 image = f'<p class="loses">{html.escape(name)}: {why}</p>' + image
@@ -472,8 +533,10 @@ def biophysical_section(data) -> str:
         units = summary.get("units", {})
         if len(frames) > 1:
             parts.append("<h3>Hemoglobin over time</h3>")
+            shown = frames if len(frames) <= 2 else [frames[0], frames[-1]]
+            notes = notes_by_map({frame: bio_notes(data, frame) for frame in shown})
             parts.append(_image(region_series_png(["C_h_out", "C_h_in"], summary,
-                                                  truth_summary, units),
+                                                  truth_summary, units, notes=notes),
                                 "hemoglobin over time"))
         else:
             parts.append(f"<p>One frame ({frames[0]}): hemoglobin over time needs two; the "
@@ -504,10 +567,20 @@ def merged_region_summary(maps, frames, masks):
     return merged
 
 
+TABLE2_PLUSMINUS = ("Each cell is the region's mean &plusmn; the standard deviation of the "
+                    "map over the region's texels: how much the parameter varies within the "
+                    "region (the supplement's Table 2 reports the same), not an uncertainty "
+                    "of the mean (the posterior std is beside each map above). Volume "
+                    "fractions; flagged texels are left out.")
+"""What the region table's &plusmn; is, said above it."""
+
+
 def table2_html(summary, truth_summary, frames) -> str:
-    """Mean +- std per region (rows) and parameter (columns), first and last frame."""
+    """Mean +- the spatial std over each region's texels (rows: region, frame, source;
+    columns: parameters), first and last frame, with :data:`TABLE2_PLUSMINUS` above it."""
     shown = sorted({frames[0], frames[-1]})
-    header = "".join(f"<th>{html.escape(p)}</th>" for p in BIO_PARAMETERS)
+    header = "".join(f"<th>{html.escape(p)}<br>mean &plusmn; spatial std</th>"
+                     for p in BIO_PARAMETERS)
     rows = []
     for region, entry in summary["regions"].items():
         for frame in shown:
@@ -520,10 +593,12 @@ def table2_html(summary, truth_summary, frames) -> str:
                     continue
                 cells = "".join(f"<td>{values[p]['mean']:.4f} &plusmn; {values[p]['std']:.4f}"
                                 "</td>" for p in BIO_PARAMETERS)
-                rows.append(f"<tr><td>{html.escape(region)}</td><td>{frame}</td>"
+                rows.append(f"<tr><td>{html.escape(region)}</td>"
+                            f"<td>{int(entry.get('texels', 0)):,}</td><td>{frame}</td>"
                             f"<td>{label}</td>{cells}</tr>")
-    return (f"<table><tr><th>region</th><th>frame</th><th>source</th>{header}</tr>"
-            + "".join(rows) + "</table>")
+    return (f'<p class="plusminus">{TABLE2_PLUSMINUS}</p>'
+            "<table><tr><th>region</th><th>texels</th><th>frame</th><th>source</th>"
+            f"{header}</tr>" + "".join(rows) + "</table>")
 
 
 def rerender_section(data, variant) -> str:
@@ -658,6 +733,7 @@ def metrics_html(evaluation) -> str:
         parts.append("<h3>Biophysical stage: MAE as a fraction of the Table 2 range (best "
                      "constant map in parentheses; red: no better than it)</h3>"
                      f"<table><tr><th>frame</th>{header}</tr>{''.join(rows)}</table>")
+        parts.append(coverage_table_html(bio))
     losers = losing_maps(evaluation)
     names = list(losers["static"]) + sorted({n for per in losers["bio"].values() for n in per})
     if names:
@@ -665,6 +741,26 @@ def metrics_html(evaluation) -> str:
                         f"truth's mean everywhere): {html.escape(', '.join(names))}; they "
                         "are marked in red below and beside their figures.</p>")
     return "\n".join(parts)
+
+
+def coverage_table_html(bio) -> str:
+    """The 2-std coverage of every chromophore per frame beside its ideal
+    (:data:`~polarbssrdf.inverse.evaluation.scores.COVERAGE_IDEAL`), or "" when no map
+    file has a std."""
+    rows = []
+    for frame, entry in sorted(bio.items(), key=lambda kv: int(kv[0])):
+        values = [(entry["maps"][p] or {}).get("coverage") for p in BIO_PARAMETERS]
+        if all(v is None or v != v for v in values):
+            continue
+        cells = "".join("<td>-</td>" if v is None or v != v else f"<td>{v:.3f}</td>"
+                        for v in values)
+        rows.append(f"<tr><td>{frame}</td>{cells}<td>{COVERAGE_IDEAL:.3f}</td></tr>")
+    if not rows:
+        return ""
+    header = "".join(f"<th>{p}</th>" for p in BIO_PARAMETERS)
+    return ("<h3>Biophysical stage: fraction of texels within 2 posterior std of the truth "
+            f"(a calibrated std: {COVERAGE_IDEAL:.3f})</h3>"
+            f"<table><tr><th>frame</th>{header}<th>ideal</th></tr>{''.join(rows)}</table>")
 
 
 def holdout_html(holdout) -> str:
@@ -720,11 +816,11 @@ def untrusted_warning(data) -> str:
     bio = data.maps.get("bio") or {}
     has_std = bool(bio) and any(name.endswith(STD_SUFFIX) for name in bio[sorted(bio)[0]])
     evidence = ""
-    coverage = bio_coverage(data.evaluation)
+    coverage = coverage_at_two_std(calibration_curves(data, sorted(bio))) if has_std else {}
     if coverage:
-        figures = ", ".join(f"{name} {value:.2f}" for name, value in coverage.items())
+        figures = ", ".join(f"{name} {value:.3f}" for name, value in coverage.items())
         evidence = (f" Against the truth, the fraction of texels within 2 std is {figures} "
-                    f"(ideal {COVERAGE_IDEAL:.3f}).")
+                    f"(ideal {COVERAGE_IDEAL:.3f}; Posterior calibration below).")
     losers = losing_maps(data.evaluation)
     count = len(losers["static"]) + len({n for per in losers["bio"].values() for n in per})
     if count:
@@ -750,6 +846,7 @@ nav a { margin-right: 1em; } .meta { color: #555; } code { background: #f3f3f3; 
         gap: 0 1em; align-items: start; }
 .loses { color: #b00; } tr.loses td, td.loses { background: #fde8e8; }
 .warning { border-left: 4px solid #c60; background: #fff4e5; padding: .4em .8em; }
+.held { color: #8a4b00; }
 """
 
 IMAGE_CHECK = """

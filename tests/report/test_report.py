@@ -318,3 +318,167 @@ def test_input_views_mark_the_held_out_camera(monkeypatch):
     section = page.input_views_section(data)
     assert titles == ["cam0 (G)", "cam1 (G, held out)", "cam2 (G)"]
     assert "cam1 was held out of the fit" in section and "W sr<sup>-1</sup>" in section
+
+
+# --------------------------------------------------------------------------- issue 32, item 4
+# An uncertainty a user can read: the pieces on hand-made maps (the whole report in a
+# browser: tests/test_demo.py).
+def _bio_file(tmp_path, rng, shape=(24, 24)):
+    """A bio map file whose beta_m the fit held at its face mean (older files say so in
+    ``held_at_face_mean``) and whose C_h_in is prior-dominated (std = the prior spread)."""
+    from polarbssrdf.io.exr import read_exr, write_exr
+
+    maps, truth = _bio_maps(rng, shape)
+    maps["C_h_in_std"] = np.full(shape, 0.02, np.float32)
+    metadata = {"noise": {"held_at_face_mean": ["beta_m"],
+                          "face_means": {"beta_m": {"mean": 0.05, "std": 0.001}},
+                          "spread": {"C_m": 0.05, "C_h_out": 0.05, "C_h_in": 0.02}},
+                "held": []}
+    path = write_exr(tmp_path / "maps_f0000.exr", maps, metadata=metadata)
+    return read_exr(path), truth
+
+
+# --------------------------------------------------------------------------- held maps
+def test_a_held_or_prior_dominated_map_says_so_beside_its_maps_and_curve(tmp_path,
+                                                                         monkeypatch):
+    from polarbssrdf.inverse.evaluation.trust import bio_map_notes
+    from polarbssrdf.report import page
+
+    (maps, metadata), truth = _bio_file(tmp_path, np.random.default_rng(4))
+    notes = bio_map_notes(maps, metadata)
+    assert notes["beta_m"]["kind"] == "held_at_face_mean" and "0.05" in notes["beta_m"]["text"]
+    assert notes["C_h_in"]["kind"] == "prior_dominated"
+    assert "C_m" not in notes and "C_h_out" not in notes  # std well below the spread
+    later = bio_map_notes(maps, {"held": ["C_m", "beta_m"]})  # a later frame of a sequence
+    assert later["C_m"]["kind"] == "held_at_first_frame"
+
+    drawn, legends = {}, {}
+    monkeypatch.setattr(page, "map_comparison_png",
+                        lambda name, *a, note=None, **k: drawn.setdefault(name, note) and b"")
+    monkeypatch.setattr(page, "calibration_png",
+                        lambda curves, notes=None: legends.update(notes or {}) or b"")
+    monkeypatch.setattr(page, "_image", lambda png, alt: f"<img alt='{alt}'>")
+    data = _fake_data(maps={"bio": {0: maps}}, truth={0: truth},
+                      valid=np.ones(maps["C_m"].shape, bool))
+    data.metadata = {"bio": {0: metadata}}
+    section = page.biophysical_section(data)
+    assert '<p class="held">beta_m, frame 0: held at its face mean 0.05' in section
+    assert '<p class="held">C_h_in, frame 0: prior-dominated' in section
+    assert drawn["beta_m"] == "beta_m: held at its face mean" and drawn["C_m"] is None
+    assert legends == {"beta_m": "held at its face mean (frame 0)",
+                       "C_h_in": "prior-dominated (frame 0)"}
+
+
+def test_the_terminal_names_the_maps_the_bands_do_not_measure(tmp_path):
+    """reconstruct's bio line and the demo's closing lines (issue 32, item 4)."""
+    from polarbssrdf.inverse.pipeline import unmeasured_text
+    from polarbssrdf.io.exr import write_exr
+
+    (maps, metadata), _ = _bio_file(tmp_path / "", np.random.default_rng(4))
+    (tmp_path / "bio").mkdir()
+    write_exr(tmp_path / "bio" / "maps_f0000.exr", maps, metadata=metadata)
+    write_exr(tmp_path / "bio" / "maps_f0001.exr", maps, metadata={**metadata,
+                                                                   "held": ["C_m"]})
+    text = unmeasured_text(tmp_path, [0, 1])
+    assert text.startswith("; not measured by the bands")
+    assert "beta_m held at its face mean (frames 0, 1)" in text
+    assert "C_h_in prior-dominated (frames 0, 1)" in text
+    assert "C_m" not in text  # a later frame holding the first frame's melanin is the design
+
+
+# --------------------------------------------------------------------------- figures
+def test_an_error_over_std_map_stands_beside_the_std_map():
+    from polarbssrdf.report.figures import Z_LIMIT, map_comparison_figure
+
+    rng = np.random.default_rng(8)
+    truth = rng.uniform(0.02, 0.3, (32, 32))
+    std = np.full((32, 32), 0.01)
+    recovered = truth + std * rng.normal(size=truth.shape)
+    mask = np.ones(truth.shape, bool)
+    figure = map_comparison_figure("C_m", recovered, truth, mask, std=std)
+    titles = [axes.get_title() for axes in figure.axes if axes.get_title()]
+    assert titles[3] == "C_m: posterior std" and titles[4].startswith("error / std: ")
+    assert "(ideal 95%)" in titles[4]
+    z_axes = figure.axes[[a.get_title() for a in figure.axes].index(titles[4])]
+    assert z_axes.images[0].get_clim() == (-Z_LIMIT, Z_LIMIT)
+    # without truth there is no error, so no z-score either
+    alone = map_comparison_figure("C_m", recovered, None, mask, std=std)
+    assert not any("error / std" in axes.get_title() for axes in alone.axes)
+
+
+def test_the_calibration_axis_is_k_up_to_3_with_room():
+    """Against erf(k / sqrt 2) the points at k = 2.5 and 3 sat 1% of the axis apart,
+    squeezed against its right edge."""
+    from polarbssrdf.report.calibration import COVERAGE_K, expected_coverage
+    from polarbssrdf.report.figures import calibration_figure
+
+    curves = {"C_m": (expected_coverage() * 0.9, 1000)}
+    figure = calibration_figure(curves, notes={"C_m": "held at its face mean (frame 0)"})
+    axes = figure.axes[0]
+    low, high = axes.get_xlim()
+    x = axes.lines[-1].get_xdata()
+    np.testing.assert_allclose(x, COVERAGE_K)  # the abscissa is k itself
+    assert x[-1] == 3.0 and high - x[-1] >= 0.05 * (high - low)  # room after k = 3
+    at = list(COVERAGE_K).index(2.5)
+    assert (x[-1] - x[at]) / (high - low) > 0.1  # k = 2.5 and 3 apart
+    labels = [text.get_text() for text in axes.get_legend().get_texts()]
+    assert "C_m (1,000 texels, held at its face mean (frame 0))" in labels
+
+
+# --------------------------------------------------------------------------- tables
+def test_the_region_table_says_what_plus_minus_is():
+    from polarbssrdf.report.page import BIO_PARAMETERS, table2_html
+
+    stats = {p: {"mean": 0.1, "std": 0.01} for p in BIO_PARAMETERS}
+    summary = {"regions": {"cheeks": {"texels": 250, "frames": {"0": stats}}}}
+    table = table2_html(summary, None, [0])
+    assert "mean &plusmn; spatial std" in table
+    assert "standard deviation of the map over the region's texels" in table
+    assert "not an uncertainty" in table and "<td>250</td>" in table
+
+
+def test_the_two_std_coverage_is_printed_beside_its_ideal():
+    from polarbssrdf.inverse.evaluation.scores import COVERAGE_IDEAL, uncertainty_scores
+    from polarbssrdf.report.page import metrics_html
+
+    assert COVERAGE_IDEAL == pytest.approx(0.9545, abs=1e-4)
+    scores = uncertainty_scores(np.array([0.0, 0.1, 0.5]), np.array([0.1, 0.1, 0.1]))
+    assert scores["coverage_ideal"] == pytest.approx(0.9545, abs=1e-4)
+
+    entry = {"mae_of_range": 0.05, "constant_mae_of_range": 0.10, "coverage": 0.62}
+    page = metrics_html({"bio": {"0": {"maps": {p: dict(entry) for p in
+                                                ("C_m", "beta_m", "C_h_out", "C_h_in")}}}})
+    assert "within 2 posterior std" in page and "<th>ideal</th>" in page
+    assert "<td>0.620</td>" in page and "<td>0.954</td>" in page
+
+
+def test_the_demo_closing_lines_mark_maps_worse_than_a_constant():
+    from polarbssrdf.demo import closing_lines
+
+    loses = {"mae_of_range": 0.2, "constant_mae_of_range": 0.1, "coverage": 0.5}
+    wins = {"mae_of_range": 0.05, "constant_mae_of_range": 0.1, "coverage": 0.95}
+    metrics = {
+        "headline": {"static eta MAE": 0.02, "static eta MAE of the best constant map": 0.03,
+                     "static alpha_s MAE": 0.04,
+                     "static alpha_s MAE of the best constant map": 0.03,
+                     "bio beta_m MAE / Table 2 range (mean over frames)": 0.2,
+                     "bio beta_m MAE of the best constant map / Table 2 range": 0.1,
+                     "bio beta_m fraction within 2 std (mean over frames)": 0.5},
+        "evaluation": {"static": {"maps": {"alpha_s": {"mae": 0.04, "constant_mae": 0.03}}},
+                       "bio": {"0": {"maps": {"beta_m": loses, "C_m": wins}},
+                               "1": {"maps": {"beta_m": loses, "C_m": wins}}}},
+        "bio_notes": {"0": {"beta_m": {"kind": "prior_dominated", "label": "prior-dominated",
+                                       "text": "..."}}}}
+    lines = closing_lines(metrics)
+    by_key = {line.split(":")[0].strip(): line for line in lines}
+    assert by_key["static eta MAE"] == "  static eta MAE: 0.02 (best constant map: 0.03)"
+    assert by_key["static alpha_s MAE"].endswith(
+        "(best constant map: 0.03)  <- no better than the best constant map")
+    assert by_key["bio beta_m MAE / Table 2 range (mean over frames)"].endswith(
+        "<- no better than the best constant map")
+    assert by_key["bio beta_m fraction within 2 std (mean over frames)"].endswith(
+        "0.5 (ideal 0.954)")
+    assert not any(line.strip().startswith("static eta MAE of the best") for line in lines)
+    assert ("  no better than the best constant map (marked in the report): alpha_s (static), "
+            "beta_m (bio, frames 0, 1)") in lines
+    assert lines[-1].endswith("beta_m prior-dominated (frame 0)")

@@ -312,18 +312,6 @@ def losing_maps(evaluation) -> dict:
     return found
 
 
-def bio_coverage(evaluation) -> dict:
-    """``{chromophore: 2-std coverage}``, the mean over the scored frames of
-    :func:`uncertainty_scores`' ``coverage`` (maps with a std only; empty without truth)."""
-    pooled = {}
-    for entry in ((evaluation or {}).get("bio") or {}).values():
-        for name, scores in (entry.get("maps") or {}).items():
-            value = scores.get("coverage")
-            if value is not None and value == value:  # NaN: no usable std
-                pooled.setdefault(name, []).append(value)
-    return {name: sum(values) / len(values) for name, values in pooled.items()}
-
-
 def _capture_atlas(capture, texture_size, atlas=None, variant=None):
     """The texel atlas of the capture's base mesh (``atlas`` if given: callers scoring many
     frames build it once)."""

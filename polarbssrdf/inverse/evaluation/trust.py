@@ -86,3 +86,90 @@ def untrusted_text(check, has_std: bool) -> str:
             "start values where the fit's own residuals cannot show their error (the albedo "
             f"inherits eta's){std}; fit views that see each texel {check['views_needed']} or "
             "more times")
+
+
+# --------------------------------------------------------------------------- biophysical maps
+PRIOR_DOMINATED_VARIANCE = 0.8
+"""A chromophore map whose median posterior variance is above this fraction of its prior
+variance is prior-dominated: with Gaussian terms the posterior precision is the prior's
+plus the data's, so above 0.8 the bands add less than a quarter of the prior's precision
+and what varies in the map is not measured. (One half, where data and prior weigh alike,
+flagged a cheek's C_h_out whose error was half the constant map's.)"""
+
+
+def bio_map_notes(channels, metadata) -> dict:
+    """Chromophore maps of one biophysical map file that are not (or barely) fitted.
+
+    ``channels``, ``metadata``: what :func:`polarbssrdf.io.exr.read_exr` returns for a
+    ``bio/maps_f####.exr``. Returns ``{name: {"kind", "label", "text"}}``: ``kind`` is
+    ``"held_at_face_mean"`` (the file's ``held_at_face_mean``, written by fits that hold a
+    map the bands cannot tell), ``"held_at_first_frame"`` (``held``: a later frame keeps
+    the first frame's melanin) or ``"prior_dominated"`` (:data:`PRIOR_DOMINATED_VARIANCE`,
+    from the ``<name>_std`` channel and the prior spread in ``noise.spread``); ``label``
+    is a few words for legends and terminal lines, ``text`` a sentence.
+    """
+    metadata = metadata or {}
+    noise = metadata.get("noise") or {}
+    notes = {}
+    face_means = noise.get("face_means") or {}
+    held_at_mean = []
+    for source in (metadata.get("held_at_face_mean"), noise.get("held_at_face_mean")):
+        if source:
+            held_at_mean += list(source)  # a list of names, or a dict keyed by them
+    for name in dict.fromkeys(held_at_mean):
+        mean = (face_means.get(name) or {}).get("mean")
+        at = f" {mean:.4g}" if isinstance(mean, (int, float)) else ""
+        notes[name] = {"kind": "held_at_face_mean", "label": "held at its face mean",
+                       "text": f"held at its face mean{at}: not fitted (the bands cannot tell "
+                               "it), its std is the prior's"}
+    for name in metadata.get("held") or []:
+        notes.setdefault(name, {
+            "kind": "held_at_first_frame", "label": "held at the first frame's map",
+            "text": "held at the first frame's map (melanin does not change within seconds): "
+                    "not fitted in this frame"})
+    flagged = np.asarray(channels.get("flagged", 0.0)) != 0
+    for name, prior in (noise.get("spread") or {}).items():
+        std = channels.get(f"{name}_std")
+        if name in notes or std is None or not prior or not prior > 0:
+            continue
+        std = np.asarray(std, np.float64)
+        use = ~flagged & np.isfinite(std) & (std > 0)
+        if not use.any():
+            continue
+        ratio = float(np.median(std[use])) / float(prior)
+        if ratio ** 2 > PRIOR_DOMINATED_VARIANCE:
+            notes[name] = {"kind": "prior_dominated",
+                           "label": f"prior-dominated, std {ratio:.2f}x the prior's",
+                           "text": f"prior-dominated: its posterior std is {ratio:.2f}x the "
+                                   f"prior spread {prior:.2g}, so the bands add less than a "
+                                   "quarter of what the prior knows; what varies in this map "
+                                   "is not measured"}
+    return notes
+
+
+NOTE_WORDS = {"held_at_face_mean": "held at its face mean", "prior_dominated": "prior-dominated",
+              "held_at_first_frame": "held at the first frame's map"}
+"""A few words per kind of :func:`bio_map_notes`."""
+
+NEWS = ("held_at_face_mean", "prior_dominated")
+"""The kinds a terminal line names (a later frame holding the first frame's melanin is the
+stage's design, not news)."""
+
+
+def notes_by_map(notes_by_frame, kinds=tuple(NOTE_WORDS)) -> dict:
+    """``{frame: bio_map_notes}`` -> ``{name: "prior-dominated (frames 0, 1); ..."}``: for
+    each map, each kind of ``kinds`` with the frames it holds in."""
+    frames_of = {}
+    for frame, notes in sorted(notes_by_frame.items(), key=lambda item: int(item[0])):
+        for name, note in notes.items():
+            if note["kind"] in kinds:
+                frames_of.setdefault(name, {}).setdefault(note["kind"], []).append(str(frame))
+    return {name: "; ".join(f"{NOTE_WORDS[kind]} (frame{'s' if len(frames) > 1 else ''} "
+                            f"{', '.join(frames)})" for kind, frames in per_kind.items())
+            for name, per_kind in frames_of.items()}
+
+
+def unmeasured_summary(notes_by_frame) -> str:
+    """One phrase for a terminal line: ``{frame: bio_map_notes}`` -> "beta_m prior-dominated
+    (frames 0, 1), C_h_in held at its face mean (frame 0)"; "" when there is nothing to say."""
+    return ", ".join(f"{name} {text}" for name, text in notes_by_map(notes_by_frame, NEWS).items())
