@@ -383,12 +383,14 @@ def say_confidence(stage, summaries, progress=True) -> None:
 
 
 def unmeasured_text(outdir, frames) -> str:
-    """The end of the bio stage's line: the chromophore maps of ``frames`` held at their
-    face mean or prior-dominated (:func:`~polarbssrdf.inverse.evaluation.trust
-    .bio_map_notes`), "" when every fitted map is measured. A later frame holding the first
-    frame's melanin is the stage's design and not repeated here."""
+    """The end of the bio stage's line: the chromophore maps of the first and last of
+    ``frames`` held at their face mean or prior-dominated (:func:`~polarbssrdf.inverse
+    .evaluation.trust.bio_map_notes`; the frames the report shows, and two files read
+    however long the sequence), "" when every fitted map is measured. A later frame
+    holding the first frame's melanin is the stage's design and not repeated here."""
     notes = {}
-    for frame in frames:
+    frames = sorted(int(f) for f in frames)
+    for frame in sorted({frames[0], frames[-1]}) if frames else []:
         try:
             notes[frame] = bio_map_notes(*read_exr(Path(outdir) / stage_map_path("bio",
                                                                                  int(frame))))

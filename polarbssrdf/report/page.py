@@ -45,7 +45,7 @@ from polarbssrdf.geometry.height import normals_from_height
 from polarbssrdf.inverse.biophysical.model import PARAMETERS as BIO_PARAMETERS
 from polarbssrdf.inverse.biophysical.stage import UNITS, region_masks, region_summary
 from polarbssrdf.inverse.evaluation.rerender import captured_view, render_view, separation_errors
-from polarbssrdf.inverse.evaluation.scores import (  # noqa: F401 (losing_maps: the page's API)
+from polarbssrdf.inverse.evaluation.scores import (
     COVERAGE_IDEAL,
     LOSES,
     evaluate_stages,
@@ -161,6 +161,8 @@ class ReportData:
     """Why the report is without ground truth (None when it has truth)."""
     metadata: dict = field(default_factory=dict)
     """``{stage: {frame: metadata}}`` of the map files read so far (:func:`map_metadata`)."""
+    computed: dict = field(default_factory=dict)
+    """Figures two parts of the page share (:func:`calibration_curves`)."""
 
     @property
     def bands(self):
@@ -449,7 +451,17 @@ def bio_notes(data, frame) -> dict:
 
 def calibration_curves(data, frames):
     """``{chromophore: (fractions, texels)}`` of :func:`coverage_fractions` over ``frames``
-    pooled: only chromophores whose maps carry ``<name>_std`` and frames with truth."""
+    pooled: only chromophores whose maps carry ``<name>_std`` and frames with truth.
+
+    Kept in ``data.computed``: the warning at the top of the page and the calibration
+    section ask for the same frames, and a long sequence is read from disk once."""
+    key = ("calibration", tuple(frames))
+    if key not in data.computed:
+        data.computed[key] = _calibration_curves(data, frames)
+    return data.computed[key]
+
+
+def _calibration_curves(data, frames):
     pooled = {}
     for frame in frames:
         if frame not in data.truth:

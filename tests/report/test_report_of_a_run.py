@@ -43,6 +43,15 @@ def run(capture_dir, tmp_path_factory):
     return {"outdir": outdir, "stdout": stdout, "stderr": stderr}
 
 
+@pytest.fixture(scope="module")
+def own_report(run, tmp_path_factory):
+    """``report OUT`` with the capture result.json records: the page's text."""
+    page_path = tmp_path_factory.mktemp("own_report") / "report.html"
+    status, _, stderr = run_cli("report", run["outdir"], "--out", page_path, "--quiet")
+    assert status == 0, stderr
+    return page_path.read_text()
+
+
 def _copy_without_truth(capture_dir, target):
     """A copy of the capture without ``truth/``, its manifest as a real capture's."""
     shutil.copytree(capture_dir, target, ignore=shutil.ignore_patterns("truth"))
@@ -53,7 +62,8 @@ def _copy_without_truth(capture_dir, target):
 
 
 # --------------------------------------------------------------------------- item 6
-def test_the_header_names_the_capture_passed_with_capture(run, capture_dir, tmp_path):
+def test_the_header_names_the_capture_passed_with_capture(run, own_report, capture_dir,
+                                                          tmp_path):
     """``report RES --capture NOTRUTH`` said "of capture <the one result.json records>"."""
     notruth = _copy_without_truth(capture_dir, tmp_path / "notruth")
     page_path = tmp_path / "report.html"
@@ -67,16 +77,13 @@ def test_the_header_names_the_capture_passed_with_capture(run, capture_dir, tmp_
     assert "without ground truth (the capture has no ground truth)" in header
 
     # with the capture result.json records, the header names it and nothing else
-    page_path = tmp_path / "own.html"
-    status, _, stderr = run_cli("report", run["outdir"], "--out", page_path, "--quiet")
-    assert status == 0, stderr
-    header = page_path.read_text().split('<p class="meta">', 1)[1].split("</p>", 1)[0]
+    header = own_report.split('<p class="meta">', 1)[1].split("</p>", 1)[0]
     assert f"of capture\n<code>{capture_dir.resolve()}</code>" in header
     assert "fitted on" not in header
 
 
 # --------------------------------------------------------------------------- item 5
-def test_too_few_views_per_texel_is_warned_by_reconstruct_and_atop_the_report(run, tmp_path):
+def test_too_few_views_per_texel_is_warned_by_reconstruct_and_atop_the_report(run, own_report):
     """Three fitted cameras of a ring: six static maps lost to a constant and the bio std
     covered a third of the errors, exit 0, without a word."""
     warnings = [line for line in run["stderr"].splitlines()
@@ -86,10 +93,7 @@ def test_too_few_views_per_texel_is_warned_by_reconstruct_and_atop_the_report(ru
             "lobes need") in warnings[0]
     assert "biophysical posterior std" not in warnings[0]  # no bio stage in this run
 
-    page_path = tmp_path / "report.html"
-    status, _, stderr = run_cli("report", run["outdir"], "--out", page_path, "--quiet")
-    assert status == 0, stderr
-    top = page_path.read_text().split("<nav>", 1)[0]  # above the first section
+    top = own_report.split("<nav>", 1)[0]  # above the first section
     assert '<p class="warning" id="untrusted">' in top
     assert "These maps and their uncertainty cannot be trusted" in top
     assert "a median of 2 usable views per confident texel" in top
