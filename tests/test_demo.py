@@ -116,6 +116,10 @@ def test_resuming_a_finished_demo_keeps_the_times_of_the_run_that_did_the_work(d
     """
     outdir = tmp_path / "demo"
     shutil.copytree(demo_dir, outdir)
+    # the run records its capture's path: the moved demo's is the copy's own capture
+    record = outdir / "result" / "result.json"
+    record.write_text(record.read_text().replace(json.dumps(str((demo_dir / "capture").resolve())),
+                                                 json.dumps(str((outdir / "capture").resolve()))))
     first = json.loads((outdir / "metrics.json").read_text())["seconds"]
     timings = json.loads((outdir / "result" / "timings.json").read_text())
 
