@@ -128,8 +128,10 @@ class StaticConfig:
         values from their neighbours.
     residual_limit : float
         Texels whose mean chi-square of ``I_sss`` and ``I_s`` exceeds this many
-        times the median texel's get confidence 0 and their neighbours'
-        values (0 turns the test off).
+        times the median texel's, plus the residual their albedo's step from
+        their neighbours can cause (a freckle's: see
+        :func:`polarbssrdf.inverse.polarimetric.fit.feature_chi_square`), get
+        confidence 0 and their neighbours' values (0 turns the test off).
     seed : int
         Seed of the patch order (a resumed run repeats it exactly).
     polarimetric : bool

@@ -20,7 +20,9 @@ runs repeat bit for bit on any number of cores.
 Confidence: ``min(1, n / 8)`` for a texel with ``n`` usable texel-views
 (view and light cosines above ``min_cosine`` with the final normals), 0
 below ``min_views`` and 0 where the fitted model leaves residuals far above
-the typical texel's (:func:`texel_confidence`); confidence-0 texels (and
+the typical texel's, beyond what the texel's step from its neighbours'
+albedo explains (:func:`texel_confidence`, :func:`feature_chi_square`: a
+freckle is a feature, not an outlier); confidence-0 texels (and
 texels off the mesh) take the values of their confident neighbours
 (normalized Gaussian fill), never NaN. The share of the surface that is
 confident is returned (:func:`confidence_summary`); below
@@ -47,6 +49,7 @@ import json
 import zipfile
 from pathlib import Path
 
+import drjit as dr
 import numpy as np
 from tqdm import tqdm
 
@@ -58,6 +61,7 @@ from polarbssrdf.inverse.polarimetric.optimize import (
     active_weights,
     optimizer_step,
     per_view_normals,
+    predicted_patch,
     texel_view_terms,
 )
 from polarbssrdf.inverse.polarimetric.patches import PatchCache, patch_order, texture_patches
@@ -237,11 +241,17 @@ class TexelStatistics:
     specular_peak_angle : array
         Degrees between the fitted normal and the closest half vector of the
         usable texel-views (:data:`UNSEEN_PEAK_ANGLE_DEG` where unseen).
+    albedo_sensitivity : array, optional
+        Mean over the usable texel-views of ``(I_sss of a unit subsurface albedo / sigma)^2``
+        (1 / albedo^2), ``sigma`` the noise unit of ``chi_square``: a change ``d`` of
+        ``rho_sss`` moves the texel's predicted ``I_sss`` by a chi-square of ``d^2`` times
+        this (NaN where unseen; :func:`feature_chi_square`).
     """
 
     counts: np.ndarray
     chi_square: np.ndarray
     specular_peak_angle: np.ndarray
+    albedo_sensitivity: np.ndarray | None = None
 
 
 def texel_statistics(params, cache, patches, config):
@@ -250,6 +260,7 @@ def texel_statistics(params, cache, patches, config):
     T = params.resolution
     counts = np.zeros(T * T, np.float64)
     chi_square = np.zeros(T * T, np.float64)
+    sensitivity = np.zeros(T * T, np.float64)
     peak_cosine = np.full(T * T, -1.0, np.float64)
     for patch in patches:
         prepared = cache.get(patch)
@@ -261,31 +272,138 @@ def texel_statistics(params, cache, patches, config):
         np.add.at(counts, texel, usable)
         residual = (np.array(per_view["sss"]) + np.array(per_view["s"])) / len(prepared.observed)
         np.add.at(chi_square, texel, residual)
+        np.add.at(sensitivity, texel, usable * unit_albedo_chi_square(params, prepared, config))
         normal = per_view_normals(leaves["dH_du"], leaves["dH_dv"], prepared)
         cosine = np.array(half_vector_cosine(prepared.geometry, normal), np.float64)
         np.maximum.at(peak_cosine, texel, np.where(usable > 0, cosine, -1.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.where(counts > 0, chi_square / counts, np.nan)
+        sensitivity = np.where(counts > 0, sensitivity / counts, np.nan)
     angle = np.where(counts > 0, np.degrees(np.arccos(np.clip(peak_cosine, -1.0, 1.0))),
                      UNSEEN_PEAK_ANGLE_DEG)
-    return TexelStatistics(counts.reshape(T, T), mean.reshape(T, T), angle.reshape(T, T))
+    return TexelStatistics(counts.reshape(T, T), mean.reshape(T, T), angle.reshape(T, T),
+                           sensitivity.reshape(T, T))
 
 
-def texel_confidence(counts, chi_square, valid, config):
+def unit_albedo_chi_square(params, prepared, config):
+    """Per texel-view ``(I_sss of a unit subsurface albedo / sigma)^2`` (NumPy float64, 1 / albedo^2).
+
+    ``I_sss = 2 I90`` is linear in ``rho_sss``
+    (:class:`polarbssrdf.inverse.polarimetric.model.PredictedStokes`), so this is the
+    chi-square, in the units of ``L_sss`` (``sigma = photometric_noise`` times the
+    patch's mean observed ``I_sss``), by which a change of 1 in the albedo moves a
+    texel-view.
+    """
+    stokes = predicted_patch(params, prepared, config)[0]
+    unit = stokes.subsurface
+    # I90 = (S0 - S1) / 2 per unit albedo, and I_sss = 2 I90 = S0 - S1
+    unit_sss = np.array(dr.detach(unit[0] - unit[1]), np.float64)
+    sigma = config.photometric_noise * prepared.image_scale
+    return np.square(unit_sss / sigma)
+
+
+NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
+"""The 8 neighbours a texel's albedo is compared with (:func:`albedo_step`)."""
+
+
+def albedo_step(rho_sss, measured):
+    """Per band and texel, the median over its 8 neighbours of ``|rho_k - rho_i|`` (albedo units).
+
+    How far a texel's subsurface albedo stands from its surroundings: large
+    at a sharp local feature (a freckle, a mole), small in smooth skin. The
+    median, not the largest difference, so one wild neighbour (a texel fitted
+    on light the model lacks) does not make a smooth texel next to it look
+    like a feature. A feature can only be told from its surroundings where
+    they were measured: a texel with a neighbour that is not ``measured`` (too
+    few views: the edge of what the cameras see, where fits are least
+    reliable) or off the texture gets step 0.
+
+    Parameters
+    ----------
+    rho_sss : (n_bands, T, T) array
+    measured : (T, T) bool
+        Texels whose albedo the fit measured (enough usable views).
+
+    Returns
+    -------
+    (n_bands, T, T) float64.
+    """
+    rho = np.asarray(rho_sss, np.float64)
+    measured = np.asarray(measured, bool)
+    rows, cols = measured.shape
+    padded_rho = np.pad(rho, ((0, 0), (1, 1), (1, 1)))
+    padded_measured = np.pad(measured, 1, constant_values=False)
+    differences = np.stack([
+        np.abs(padded_rho[:, 1 + dy:1 + dy + rows, 1 + dx:1 + dx + cols] - rho)
+        for dy, dx in NEIGHBOURS])
+    surrounded = measured & np.all(
+        [padded_measured[1 + dy:1 + dy + rows, 1 + dx:1 + dx + cols] for dy, dx in NEIGHBOURS],
+        axis=0)
+    return np.where(surrounded, np.median(differences, axis=0), 0.0)
+
+
+FEATURE_MIXING_VARIANCE = 0.25
+"""The largest variance over views of a mixing weight in [0, 1] (:func:`feature_chi_square`)."""
+
+
+def feature_chi_square(step, sensitivity):
+    """The mean chi-square a texel's albedo step can leave in a per-texel fit (``L_sss`` units).
+
+    A camera pixel, and the texel-view read from it, mixes a texel's light
+    with its neighbours' by a weight ``w`` in [0, 1] that changes from view to
+    view (the pixel's footprint and its position on the surface differ per
+    camera). Where the albedo steps by ``d`` from the texel to its neighbours,
+    a view's ``I_sss`` is moved by ``w d`` times the unit-albedo image; the
+    fitted albedo takes up the mean of ``w``, and the rest, ``(w - mean w) d``,
+    is a residual that no per-texel albedo can fit, caused by a real feature,
+    not by light the model lacks. Its mean square is at most the largest
+    variance of a weight in [0, 1], 1/4 (:data:`FEATURE_MIXING_VARIANCE`),
+    times ``d^2`` times the texel's :attr:`TexelStatistics.albedo_sensitivity`;
+    averaged over bands like ``chi_square``.
+
+    Parameters
+    ----------
+    step : (n_bands, T, T) array
+        :func:`albedo_step`.
+    sensitivity : (T, T) array
+        :attr:`TexelStatistics.albedo_sensitivity` (NaN where unseen: 0 is returned).
+    """
+    explained = (FEATURE_MIXING_VARIANCE * np.mean(np.square(np.asarray(step, np.float64)), axis=0)
+                 * np.asarray(sensitivity, np.float64))
+    return np.where(np.isfinite(explained), explained, 0.0)
+
+
+def texel_confidence(counts, chi_square, valid, config, explained=None):
     """``min(1, n / 8)``; 0 below ``min_views``, off the mesh, and where the model does not fit.
 
     A texel whose texel-views' mean chi-square exceeds ``residual_limit`` times
-    the median over texels is light the per-texel model cannot explain (glossy
-    interreflection in concave regions, a shadow edge, a wrong geometry):
-    its values are replaced by its neighbours'.
+    the median over texels, plus the part its own albedo feature explains
+    (``explained``, :func:`feature_chi_square`; none when not given), is light
+    the per-texel model cannot explain (glossy interreflection in concave
+    regions, a shadow edge, a wrong geometry): its values are replaced by its
+    neighbours'. A freckle leaves a high residual too, but one that its step
+    from the neighbours' albedo accounts for, so it keeps its values.
     """
     confidence = np.where(counts >= config.min_views,
                           np.minimum(1.0, counts / FULL_CONFIDENCE_VIEWS), 0.0)
     seen = (counts > 0) & np.isfinite(chi_square)
     if config.residual_limit > 0 and seen.any():
         limit = config.residual_limit * max(float(np.median(chi_square[seen])), 1e-12)
+        if explained is not None:
+            limit = limit + np.asarray(explained, np.float64)
         confidence = np.where(seen & (chi_square > limit), 0.0, confidence)
     return np.where(valid, confidence, 0.0)
+
+
+def screening_confidence(statistics, rho_sss, valid, config):
+    """:func:`texel_confidence` of a fit, its albedo features (:func:`albedo_step`) explained."""
+    explained = None
+    if statistics.albedo_sensitivity is not None:
+        measured = (valid & (statistics.counts >= config.min_views)
+                    & np.isfinite(statistics.chi_square))
+        explained = feature_chi_square(albedo_step(rho_sss, measured),
+                                       statistics.albedo_sensitivity)
+    return texel_confidence(statistics.counts, statistics.chi_square, valid, config, explained)
 
 
 def confidence_summary(confidence, valid) -> dict:
@@ -310,7 +428,7 @@ def check_some_confident(summary, statistics, valid, config) -> None:
     else:
         why = (f"the {enough} texels with {config.min_views} or more usable texel-views all "
                f"leave residuals above residual_limit = {config.residual_limit:g} times the "
-               "median texel's")
+               "median texel's, beyond what their albedo's step from their neighbours explains")
     raise NoConfidentTexelError(f"no texel of the surface is confident ({why}): every map "
                                 "value would be a guess")
 
@@ -357,7 +475,7 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
                                    description)
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
     statistics = texel_statistics(params, cache, patches, config)
-    confidence = texel_confidence(statistics.counts, statistics.chi_square, atlas.valid, config)
+    confidence = screening_confidence(statistics, params.rho_sss, atlas.valid, config)
     summary = confidence_summary(confidence, atlas.valid)
     check_some_confident(summary, statistics, atlas.valid, config)
     return StageResult(final_maps(params, atlas, confidence, store.bands,
