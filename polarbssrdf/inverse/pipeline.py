@@ -66,6 +66,7 @@ from polarbssrdf.inverse.results.directory import (
     record_settings,
     stage_map_path,
     record_stage_seconds,
+    write_metrics,
 )
 from polarbssrdf.io import load_capture
 from polarbssrdf.io.atomic import atomic_write_text
@@ -95,18 +96,21 @@ class Reconstruction(ResultDirectory):
     ``capture`` (the capture directory), ``texture`` (T), ``frame`` (the static
     frame), ``holdout``, ``seconds`` (wall time of the call), ``stage_lines``
     (one line per stage that ran, as ``reconstruct`` prints them), ``failed``
-    (``{frame: reason}`` of frames that did not finish; the others are written) and
+    (``{frame: reason}`` of frames that did not finish; the others are written),
     ``reused`` (the stages a resume found finished: ``timings.json`` keeps their earlier
-    seconds).
+    seconds) and ``views_check`` (:func:`~polarbssrdf.inverse.evaluation.trust.views_check`
+    of the static frame, with ``frame``; ``trusted`` False when the maps and the std
+    cannot be trusted; None when neither the static nor the bio stage ran).
     """
 
     def __init__(self, outdir, *, capture, texture, frame, holdout, seconds, stage_lines,
-                 failed, reused=()):
+                 failed, reused=(), views_check=None):
         super().__init__(outdir)
         self.capture, self.texture, self.frame = capture, texture, frame
         self.holdout, self.seconds = list(holdout), seconds
         self.stage_lines, self.failed = list(stage_lines), dict(failed)
         self.reused = list(reused)
+        self.views_check = views_check
 
     def summary(self, closing=None) -> str:
         """The lines ``reconstruct`` prints when it finishes; ``closing`` replaces the last one
@@ -405,8 +409,9 @@ def unmeasured_text(outdir, frames) -> str:
 def warn_if_untrusted(outdir, frame) -> dict | None:
     """Warn on stderr (also with ``--quiet``) when the static frame's maps, and the
     biophysical std if the run has one, cannot be trusted: too few usable views per
-    confident texel (:func:`~polarbssrdf.inverse.evaluation.trust.views_check`). Returns
-    the check (None without static maps or confident texels)."""
+    confident texel (:func:`~polarbssrdf.inverse.evaluation.trust.views_check`). Records
+    the check, with the frame, under ``views`` in ``OUTDIR/metrics.json`` and returns it
+    (None without static maps or confident texels)."""
     outdir = Path(outdir)
     try:
         maps = read_stage_maps(outdir, "static", int(frame))
@@ -416,7 +421,11 @@ def warn_if_untrusted(outdir, frame) -> dict | None:
     if "confidence" not in maps:
         return None
     check = views_check(maps["confidence"])  # confidence is 0 off the mesh
-    if check is None or check["trusted"]:
+    if check is None:
+        return None
+    check = {"frame": int(frame), **check}
+    write_metrics(outdir, "views", check)  # for scripts: metrics.json says it too
+    if check["trusted"]:
         return check
     has_std = manifest.record("bio", int(frame)) is not None
     print(f"polarbssrdf reconstruct: warning: static frame {frame}: "
@@ -578,11 +587,10 @@ def reconstruct(capture, outdir, stages=STAGES, config=None, holdout=(), *, text
                          + unmeasured_text(outdir, summary["frames"]))
         if stage not in reused:  # timings.json keeps the seconds of the run that did the work
             record_stage_seconds(outdir, {stage: time.perf_counter() - stage_start})
-    if {"static", "bio"} & set(stages):
-        warn_if_untrusted(outdir, frame)
+    views = warn_if_untrusted(outdir, frame) if {"static", "bio"} & set(stages) else None
     return Reconstruction(outdir, capture=capture.directory, texture=texture, frame=frame,
                           holdout=holdout, seconds=time.perf_counter() - started,
-                          stage_lines=lines, failed=failed, reused=reused)
+                          stage_lines=lines, failed=failed, reused=reused, views_check=views)
 
 
 def _static_fit_done(outdir: Path, frame: int, iterations: int) -> bool:

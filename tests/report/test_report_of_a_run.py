@@ -92,6 +92,9 @@ def test_too_few_views_per_texel_is_warned_by_reconstruct_and_atop_the_report(ru
     assert ("a median of 2 usable views per confident texel, fewer than the 4 the glossy "
             "lobes need") in warnings[0]
     assert "biophysical posterior std" not in warnings[0]  # no bio stage in this run
+    views = json.loads((run["outdir"] / "metrics.json").read_text())["views"]
+    assert views["frame"] == 0 and views["median_views"] == 2 and views["views_needed"] == 4
+    assert views["trusted"] is False and views["confident_texels"] > 0
 
     top = own_report.split("<nav>", 1)[0]  # above the first section
     assert '<p class="warning" id="untrusted">' in top
