@@ -9,16 +9,21 @@ into one self-contained HTML file: every figure is a PNG inlined as a
 * each static map next to its truth and its error map, with colour bars and units;
 * the normal map, the truth's, and the angle between them;
 * the dynamic frames' change of subsurface albedo against the first frame;
-* the biophysical maps of the first and last frame, their region means over
-  time with the truth, and the region summary in the layout of the
-  supplement's Table 2;
+* the biophysical maps of the first and last frame (each chromophore beside its
+  posterior std and, with truth, its error over std; a map the bands did not
+  measure says so), their region means over time with the truth, the
+  calibration of the std against k, and the region summary in the layout of the
+  supplement's Table 2 (its +- is the spatial std, said above it);
 * a view re-rendered with the recovered maps beside the capture
   (:mod:`polarbssrdf.inverse.evaluation.rerender`), the held-out camera if the run held one out;
 * the loss curves of every stage, and the metrics table
   (:func:`polarbssrdf.inverse.evaluation.scores.evaluate_stages`).
 
 Without ground truth (a real capture) the report shows the recovered maps,
-the loss curves and the re-rendering residuals only.
+the loss curves and the re-rendering residuals only. At the top, the page says
+when most of the surface is unconfident, and when the confident texels had too
+few views for the maps and their std to be trusted
+(:mod:`polarbssrdf.inverse.evaluation.trust`).
 
 A small script at the end of the page marks images that failed to decode
 (``<body data-images-broken>``) and records the page's height in CSS pixels
