@@ -130,16 +130,24 @@ def _dynamic_copy(sequence, name, **kwargs):
     return outdir, report
 
 
-def test_serial_local_workers_and_a_scheduler_give_the_same_maps(sequence):
+@pytest.fixture(scope="module")
+def cluster():
+    """One scheduler with two worker processes for the module's scheduler tests (starting a
+    cluster and its workers' Mitsuba costs 10-30 s): the first test fits on it, the second
+    kills one of its workers (the nanny starts another)."""
     from dask.distributed import LocalCluster
 
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:
+        yield cluster
+
+
+def test_serial_local_workers_and_a_scheduler_give_the_same_maps(sequence, cluster):
     _, _, _, serial = sequence
     workers, report = _dynamic_copy(sequence, "workers", workers=2, frames=[1, 4])
     assert report["done"] == [1, 4] and not report["failed"]
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
-        remote, report = _dynamic_copy(sequence, "scheduler", scheduler=cluster.scheduler_address,
-                                       frames=[1, 4])
+    remote, report = _dynamic_copy(sequence, "scheduler", scheduler=cluster.scheduler_address,
+                                   frames=[1, 4])
     assert report["done"] == [1, 4]
     for frame in (1, 4):
         expected = _maps(serial, frame)
@@ -148,15 +156,15 @@ def test_serial_local_workers_and_a_scheduler_give_the_same_maps(sequence):
                 np.testing.assert_allclose(values, expected[name], atol=1e-5, err_msg=name)
 
 
-def test_a_worker_killed_mid_frame_costs_nothing(sequence):
+def test_a_worker_killed_mid_frame_costs_nothing(sequence, cluster):
     import time
 
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
     _, _, _, serial = sequence
     killed = []
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+    with Client(cluster) as client:
+        client.wait_for_workers(2)
         pids = client.run(os.getpid)  # worker address -> process id
 
         def kill_a_busy_worker():
