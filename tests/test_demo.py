@@ -1,7 +1,8 @@
 """``polarbssrdf demo`` end to end at a tiny size, the report, and reconstruct's resume per stage.
 
 One tiny demo (4 views, 2 frames, 32^2 texels, 5 epochs) runs once per
-session; the tests read its directory and never modify it.
+session; the tests read its directory and never modify it (the resume test
+resumes a copy).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import time
 import numpy as np
 import pytest
 
-from helpers import default_sigint
+from helpers import default_sigint, run_cli
 
 TINY = dict(views=4, frames=2, texture=32, resolution=96, spp=2, iterations=5)
 IMAGE = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
@@ -103,6 +104,37 @@ def test_every_stage_is_listed_in_result_json(demo_dir):
     assert listed == {("static", 0), ("dynamic", 1), ("bio", 0), ("bio", 1)}
     for record in result["maps"]:
         assert (demo_dir / "result" / record["path"]).is_file()
+
+
+def test_resuming_a_finished_demo_keeps_the_times_of_the_run_that_did_the_work(demo_dir,
+                                                                                tmp_path):
+    """Issue 32, item 11: ``demo --resume`` on a finished demo keeps the times of the run
+    that did the work, and says what it reused.
+
+    On a copy of the session's demo (a resume rewrites metrics.json, which the other tests
+    read); it was test_demo_resume.py's own 1-epoch demo, run once more just for this.
+    """
+    outdir = tmp_path / "demo"
+    shutil.copytree(demo_dir, outdir)
+    # the run records its capture's path: the moved demo's is the copy's own capture
+    record = outdir / "result" / "result.json"
+    record.write_text(record.read_text().replace(json.dumps(str((demo_dir / "capture").resolve())),
+                                                 json.dumps(str((outdir / "capture").resolve()))))
+    first = json.loads((outdir / "metrics.json").read_text())["seconds"]
+    timings = json.loads((outdir / "result" / "timings.json").read_text())
+
+    options = [f"--{k}={v}" for k, v in TINY.items()]
+    status, stdout, stderr = run_cli("demo", outdir, *options, "--resume")
+    assert status == 0, stderr
+    again = json.loads((outdir / "metrics.json").read_text())["seconds"]
+    assert again["stages"] == first["stages"] == timings
+    assert json.loads((outdir / "result" / "timings.json").read_text()) == timings
+    assert again["synth"] == first["synth"] and again["reconstruct"] == first["reconstruct"]
+    assert again["reused"] == ["synth", "reconstruct"]
+    assert "reused from the earlier run: synth, reconstruct" in stdout
+    assert "reused the finished synth and reconstruct" in stderr
+    # reconstruct's own summary says which stages it found done
+    assert stdout.count("reused the earlier run's fit") == 3
 
 
 def test_demo_refuses_a_foreign_directory_and_other_settings(demo_dir, tmp_path, capsys):
