@@ -3,15 +3,23 @@ and a search for band sets (or comb-filter pairs) that lower them.
 
 The biophysical stage fits the lobe albedo of each band, ``rho_b = R_bar_b(theta) / c(eta)``
 (eq. 47 integrated over each band by its spectral quadrature, :func:`~.model.band_reflectance`;
-docs/biophysical.md), to ``theta = (C_m, beta_m, C_h_out, C_h_in)`` with eta, gamma and
-the epidermis thickness held. For an albedo error of band covariance ``S`` (Gaussian), the
-Fisher information of one texel is
+docs/biophysical.md), to ``theta = (C_m, beta_m, C_h_out, C_h_in)``. For an albedo error of
+band covariance ``S`` (Gaussian), the Fisher information of one texel is
 
     F = J^T S^-1 J,     J_bj = d rho_b / d theta_j,
 
 and no unbiased estimator has a smaller covariance than the Cramér-Rao bound ``F^-1``
 (Pera et al. 2018 use it to design SFDI wavelengths). With a Gaussian prior of standard
 deviations ``s_j`` the Bayesian (Van Trees) bound is ``(F + diag(1 / s_j^2))^-1``.
+
+The skin's other unknowns (:data:`~.nuisances.NUISANCES`: epidermal thickness, oxygen
+fraction, index) are not known on a real face. Given as ``nuisances`` (name -> prior std),
+they join ``theta`` in ``J`` and are marginalized: the chromophores keep the information
+
+    F_eff = F_cc - F_cn (F_nn + diag(1 / s_n^2))^-1 F_nc        (:func:`marginal_information`)
+
+(the inverse of the top-left block of the joint posterior precision), so a nuisance the bands
+cannot tell from a chromophore widens that chromophore's bound.
 
 * ``J`` is central differences of the skin model (the model of the fit and of synth, never a
   second copy), step :data:`JACOBIAN_STEP`;
@@ -20,9 +28,11 @@ deviations ``s_j`` the Bayesian (Van Trees) bound is ``(F + diag(1 / s_j^2))^-1`
   eigenvalue of that information below :data:`SINGULAR_TOLERANCE` times the largest is a
   direction the bands cannot see: the bound of every chromophore with a share of it is
   reported as infinite (``identifiable`` false), never an error;
-* noise models (:class:`NoiseModel`): white relative (``sigma x albedo`` per band, the fit's
-  ``albedo_noise``), white absolute (lobe-albedo units), or a full band covariance of relative
-  errors read from JSON (``S = diag(rho) C diag(rho)``).
+* noise models (:class:`NoiseModel`): relative (``sigma x albedo`` per band, the fit's
+  ``albedo_noise``, plus an optional band-common part ``common x albedo``, the fit's
+  ``common_noise``: a gain or shading error every band shares), white absolute (lobe-albedo
+  units), or a full band covariance of relative errors read from JSON
+  (``S = diag(rho) C diag(rho)``).
 
 The design mode (:func:`design_bands`, :func:`design_comb_pair`) minimizes a stated
 criterion (:data:`CRITERIA`) over Table 2's eight rows.
@@ -39,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from .model import DEFAULT_GAMMA, DEFAULT_THICKNESS_MM, band_reflectance
+from .nuisances import NUISANCES, nuisance_prior_std
 from .parameters import TABLE2, TABLE2_STD, table2_ranges, table2_spread_across_rows
 
 PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
@@ -85,6 +96,9 @@ class NoiseModel:
         band covariance of relative errors.
     sigma : float
         For the white models (> 0).
+    common : float
+        For ``relative``: the standard deviation of a relative error all bands share (>= 0;
+        ``S = diag(rho) (sigma^2 I + common^2 1 1^T) diag(rho)``). 0: independent bands.
     matrix : (n, n) array
         For ``covariance``: symmetric positive definite.
     band_names : tuple of str
@@ -95,6 +109,7 @@ class NoiseModel:
 
     kind: str
     sigma: float | None = None
+    common: float = 0.0
     matrix: np.ndarray | None = None
     band_names: tuple | None = None
     source: str = ""
@@ -103,6 +118,10 @@ class NoiseModel:
         if self.kind in ("relative", "absolute"):
             if not (isinstance(self.sigma, (int, float)) and math.isfinite(self.sigma) and self.sigma > 0):
                 raise ValueError(f"the {self.kind} noise level must be a number > 0, got {self.sigma!r}")
+            if not (isinstance(self.common, (int, float)) and math.isfinite(self.common) and self.common >= 0):
+                raise ValueError(f"the band-common noise level must be a number >= 0, got {self.common!r}")
+            if self.common > 0 and self.kind != "relative":
+                raise ValueError("a band-common noise part is relative to the albedo: use the relative model")
         elif self.kind == "covariance":
             object.__setattr__(self, "matrix", check_covariance(self.matrix, self.source or "covariance"))
             if self.band_names is not None and len(self.band_names) != self.matrix.shape[0]:
@@ -112,14 +131,15 @@ class NoiseModel:
             raise ValueError(f"noise kind must be 'relative', 'absolute' or 'covariance', got {self.kind!r}")
 
     @property
-    def white(self) -> bool:
-        """Independent bands (the information of a band set is a sum over its bands)."""
+    def parametric(self) -> bool:
+        """A parametric model (relative or absolute): the information of any band subset follows
+        from per-band terms (:func:`_subset_information`), as the design mode needs."""
         return self.kind != "covariance"
 
     def for_bands(self, bands) -> "NoiseModel":
         """This model for ``bands``: a covariance matrix reordered to their order by its band
         names (``ValueError`` naming the bands that do not match), or checked for size."""
-        if self.white:
+        if self.parametric:
             return self
         names = [band.name for band in bands]
         where = self.source or "covariance"
@@ -140,7 +160,7 @@ class NoiseModel:
         n = albedo.shape[-1]
         if self.kind == "absolute":
             return np.broadcast_to(self.sigma ** 2 * np.eye(n), albedo.shape[:-1] + (n, n)).copy()
-        matrix = self.sigma ** 2 * np.eye(n) if self.kind == "relative" else self.matrix
+        matrix = (self.sigma ** 2 * np.eye(n) + self.common ** 2 if self.kind == "relative" else self.matrix)
         if matrix.shape != (n, n):
             raise ValueError(f"the noise covariance is {matrix.shape[0]} x {matrix.shape[0]}, the band "
                              f"set has {n} bands")
@@ -148,11 +168,14 @@ class NoiseModel:
 
     def to_json(self) -> dict:
         out = {"kind": self.kind}
-        if self.white:
+        if self.parametric:
             out["sigma"] = self.sigma
             out["meaning"] = ("standard deviation relative to the albedo, independent bands"
                               if self.kind == "relative" else
                               "standard deviation in lobe-albedo units, independent bands")
+            if self.common > 0:
+                out["common"] = self.common
+                out["meaning"] += "; common: a relative error shared by every band"
         else:
             out["matrix"] = self.matrix.tolist()
             out["bands"] = list(self.band_names) if self.band_names else None
@@ -182,9 +205,10 @@ def check_covariance(matrix, where="covariance") -> np.ndarray:
     return 0.5 * (matrix + matrix.T)
 
 
-def white_noise(sigma, relative=True) -> NoiseModel:
-    """Independent bands with standard deviation ``sigma x albedo`` (relative) or ``sigma``."""
-    return NoiseModel("relative" if relative else "absolute", sigma=sigma)
+def white_noise(sigma, relative=True, common=0.0) -> NoiseModel:
+    """Independent bands with standard deviation ``sigma x albedo`` (relative) or ``sigma``, plus
+    (relative only) a relative error ``common`` that every band shares."""
+    return NoiseModel("relative" if relative else "absolute", sigma=sigma, common=common)
 
 
 def read_covariance(path) -> NoiseModel:
@@ -210,33 +234,72 @@ def read_covariance(path) -> NoiseModel:
 
 
 def albedo_jacobian(C_m, beta_m, C_h_out, C_h_in, bands, eta, thickness_mm=DEFAULT_THICKNESS_MM,
-                    gamma=DEFAULT_GAMMA, exit_fraction=None, step=JACOBIAN_STEP):
-    """Per-band albedo (..., n) and its Jacobian (..., n, 4) in (C_m, beta_m, C_h_out, C_h_in).
+                    gamma=DEFAULT_GAMMA, exit_fraction=None, step=JACOBIAN_STEP, nuisances=()):
+    """Per-band albedo (..., n) and its Jacobian (..., n, 4 + m) in (C_m, beta_m, C_h_out, C_h_in)
+    and then the ``m`` nuisances named in ``nuisances`` (of :data:`~.nuisances.NUISANCES`).
 
     ``rho_b = R_bar_b / c(eta)`` with ``R_bar_b`` :func:`~.model.band_reflectance` (the band
     integral by the bands' spectral quadrature, the model of synth and of the biophysical fit) and ``c = exit_fraction(eta)`` (pass
     :func:`polarbssrdf.render.subsurface.subsurface_exit_fraction` for the lobe albedo of
     eq. 19; ``None`` gives the model's flux ``R_bar``, the same up to a per-texel factor, which
-    relative noise does not see). Central differences of step ``step``; a parameter closer than
+    relative noise does not see). Central differences of step ``step``; a chromophore closer than
     ``step`` to 0 or 1 is differenced about the nearest point ``step`` inside."""
-    params = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in (C_m, beta_m, C_h_out, C_h_in, eta)))
-    theta, eta = np.stack(params[:4], axis=-1), params[4]
-    centre = np.clip(theta, step, 1.0 - step)
-    # stencil: the point, then +step and -step in each parameter
-    offsets = np.concatenate([np.zeros((1, 4)), step * np.eye(4), -step * np.eye(4)])
-    points = np.concatenate([theta[..., None, :], centre[..., None, :] + offsets[1:]], axis=-2)
-    values = band_reflectance(*(points[..., j] for j in range(4)), list(bands), eta=eta[..., None],
-                              thickness_mm=thickness_mm, gamma=gamma)
+    unknown = [n for n in nuisances if n not in NUISANCES]
+    if unknown:
+        raise ValueError(f"unknown nuisance(s) {unknown}; known: {list(NUISANCES)}")
+    params = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in
+                                   (C_m, beta_m, C_h_out, C_h_in, thickness_mm, gamma, eta)))
+    names = PARAMETERS + tuple(nuisances)
+    columns = [params[j] for j in range(4)] + [params[4 + NUISANCES.index(n)] for n in nuisances]
+    theta = np.stack(columns, axis=-1)
+    p = len(names)
+    centre = theta.copy()
+    centre[..., :4] = np.clip(theta[..., :4], step, 1.0 - step)
+    # stencil: the point, then +step and -step in each unknown
+    offsets = np.concatenate([step * np.eye(p), -step * np.eye(p)])
+    points = np.concatenate([theta[..., None, :], centre[..., None, :] + offsets], axis=-2)
+    value = {name: points[..., j] for j, name in enumerate(names)}
+    held = {n: params[4 + j][..., None] for j, n in enumerate(NUISANCES) if n not in value}
+    value.update(held)
+    values = band_reflectance(*(value[n] for n in PARAMETERS), list(bands), eta=value["eta"],
+                              thickness_mm=value["thickness_mm"], gamma=value["gamma"])
     if exit_fraction is not None:
-        values = values / np.asarray(exit_fraction(eta), dtype=np.float64)[..., None, None]
+        eta_points = np.broadcast_to(value["eta"], values.shape[:-1])
+        values = values / np.asarray(exit_fraction(eta_points), dtype=np.float64)[..., None]
     albedo = values[..., 0, :]
-    jacobian = (values[..., 1:5, :] - values[..., 5:9, :]) / (2.0 * step)
+    jacobian = (values[..., 1:1 + p, :] - values[..., 1 + p:, :]) / (2.0 * step)
     return albedo, np.swapaxes(jacobian, -1, -2)
 
 
 def fisher_information(jacobian, covariance) -> np.ndarray:
-    """``J^T S^-1 J``, (..., 4, 4), for J (..., n, 4) and S (..., n, n)."""
+    """``J^T S^-1 J``, (..., p, p), for J (..., n, p) and S (..., n, n)."""
     return np.swapaxes(jacobian, -1, -2) @ np.linalg.solve(covariance, jacobian)
+
+
+def marginal_information(information, nuisance_prior_std) -> np.ndarray:
+    """The chromophores' information (..., 4, 4) left when the last ``m`` unknowns of the joint
+    information (..., 4 + m, 4 + m) are nuisances of Gaussian prior standard deviations
+    ``nuisance_prior_std`` (m,), marginalized: the Schur complement
+    ``F_cc - F_cn (F_nn + diag(1 / s^2))^-1 F_nc``, whose inverse is the chromophores' block of
+    the joint posterior covariance. A prior std of 0 (or none given) is a known nuisance."""
+    information = np.asarray(information, dtype=np.float64)
+    s = np.asarray(nuisance_prior_std, dtype=np.float64)
+    if s.size == 0:
+        return information[..., :4, :4]
+    if information.shape[-1] != 4 + s.size:
+        raise ValueError(f"{s.size} nuisance prior(s) for a {information.shape[-1]} x {information.shape[-1]} "
+                         "information matrix")
+    if not np.all(np.isfinite(s) & (s >= 0)):
+        raise ValueError(f"nuisance prior standard deviations must be finite and >= 0, got {s.tolist()}")
+    known = s == 0
+    if known.all():
+        return information[..., :4, :4]
+    keep = np.concatenate([np.ones(4, bool), ~known])
+    information = information[..., keep, :][..., keep]
+    s = s[~known]
+    cc, cn, nn = information[..., :4, :4], information[..., :4, 4:], information[..., 4:, 4:]
+    nn = nn + np.diag(1.0 / s ** 2)
+    return cc - cn @ np.linalg.solve(nn, np.swapaxes(cn, -1, -2))
 
 
 def bound_from_information(information, scale, prior_std=None):
@@ -313,8 +376,10 @@ class BandBounds:
     """Bounds of one band set at each skin (Table 2 row).
 
     ``std`` (R, 4) in volume fractions (inf where not identifiable), ``covariance``
-    (R, 4, 4), ``albedo`` (R, n), ``jacobian`` (R, n, 4), ``information`` (R, 4, 4),
-    ``condition`` (R,)."""
+    (R, 4, 4), ``albedo`` (R, n), ``jacobian`` (R, n, 4 + m: the chromophores, then the
+    nuisances of ``nuisances``), ``information`` (R, 4, 4: the chromophores', nuisances
+    marginalized), ``condition`` (R,); ``nuisances`` name -> prior std of the marginalized
+    unknowns (empty: all held at their values)."""
 
     bands: list
     rows: list
@@ -326,6 +391,7 @@ class BandBounds:
     covariance: np.ndarray
     std: np.ndarray
     condition: np.ndarray
+    nuisances: dict = dataclasses.field(default_factory=dict)
 
     @property
     def fraction_of_range(self) -> np.ndarray:
@@ -362,20 +428,48 @@ def _row_arrays(rows):
     return rows, params
 
 
+def check_nuisances(nuisances) -> dict:
+    """``name -> prior std`` of the nuisances to marginalize: ``None`` or ``{}`` (all held),
+    ``"default"`` (all of :data:`~.nuisances.NUISANCES` at :func:`~.nuisances.nuisance_prior_std`,
+    the spreads the biophysical fit assumes), or a dict (std >= 0; 0 holds it)."""
+    if nuisances is None:
+        return {}
+    if nuisances == "default":
+        return {n: nuisance_prior_std(n) for n in NUISANCES}
+    if not isinstance(nuisances, dict):
+        raise ValueError(f"nuisances must be None, 'default' or a dict name -> prior std, got {nuisances!r}")
+    unknown = sorted(set(nuisances) - set(NUISANCES))
+    if unknown:
+        raise ValueError(f"unknown nuisance(s) {unknown}; known: {list(NUISANCES)}")
+    out = {}
+    for name in NUISANCES:
+        if name in nuisances:
+            value = nuisances[name]
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"nuisance {name}: the prior std must be a number >= 0, got {value!r}")
+            if value > 0:
+                out[name] = float(value)
+    return out
+
+
 def band_bounds(bands, noise, rows=None, prior=None, thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAULT_GAMMA,
-                exit_fraction=None) -> BandBounds:
+                exit_fraction=None, nuisances=None) -> BandBounds:
     """Cramér-Rao bounds of the four chromophores for ``bands`` at Table 2 rows (all by default),
-    each row at its own eta. ``prior``: see :func:`prior_spreads` (Bayesian bound)."""
+    each row at its own eta. ``prior``: see :func:`prior_spreads` (Bayesian bound).
+    ``nuisances``: the skin's other unknowns to marginalize, see :func:`check_nuisances`."""
     bands = list(bands)
     if not bands:
         raise ValueError("the band set is empty")
     noise = noise.for_bands(bands)
+    nuisances = check_nuisances(nuisances)
     rows, params = _row_arrays(rows)
     albedo, jacobian = albedo_jacobian(*(params[n] for n in PARAMETERS), bands, params["eta"], thickness_mm,
-                                       gamma, exit_fraction)
-    information = fisher_information(jacobian, noise.covariance(albedo))
+                                       gamma, exit_fraction, nuisances=tuple(nuisances))
+    joint = fisher_information(jacobian, noise.covariance(albedo))
+    information = marginal_information(joint, list(nuisances.values()))
     covariance, std, condition = bound_from_information(information, table2_scale(), prior_spreads(prior, rows))
-    return BandBounds(bands, rows, noise, prior, albedo, jacobian, information, covariance, std, condition)
+    return BandBounds(bands, rows, noise, prior, albedo, jacobian, information, covariance, std, condition,
+                      nuisances)
 
 
 def band_pins(bounds: BandBounds, thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAULT_GAMMA, exit_fraction=None):
@@ -390,7 +484,7 @@ def band_pins(bounds: BandBounds, thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAU
             out.append(np.full(bounds.std.shape, np.inf))
             continue
         noise = bounds.noise
-        if not noise.white:
+        if not noise.parametric:
             names = noise.band_names or tuple(band.name for band in bounds.bands)
             order = [names.index(bounds.bands[i].name) for i in keep]
             noise = dataclasses.replace(noise, matrix=noise.matrix[np.ix_(order, order)],
@@ -398,7 +492,8 @@ def band_pins(bounds: BandBounds, thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAU
         # the same model's rows without band b (a subset's own quadrature would be another
         # model, up to its 0.05% error, and could seem to gain from a band's removal)
         albedo, jacobian = bounds.albedo[:, keep], bounds.jacobian[:, keep]
-        information = fisher_information(jacobian, noise.for_bands([bounds.bands[i] for i in keep]).covariance(albedo))
+        joint = fisher_information(jacobian, noise.for_bands([bounds.bands[i] for i in keep]).covariance(albedo))
+        information = marginal_information(joint, list(bounds.nuisances.values()))
         _, std, _ = bound_from_information(information, table2_scale(), prior_spreads(bounds.prior, bounds.rows))
         with np.errstate(invalid="ignore"):
             out.append(std / bounds.std)
@@ -424,22 +519,41 @@ class BandDesign:
         return [self.candidates[i] for i in self.chosen]
 
 
-def _per_band_information(candidates, noise, rows, thickness_mm, gamma, exit_fraction):
-    """(R, n_candidates, 4, 4) information of each candidate alone (white noise only)."""
+def _per_band_terms(candidates, noise, rows, thickness_mm, gamma, exit_fraction, nuisances):
+    """Per candidate band alone, in units of the noise: ``(outer, vector)`` with ``outer``
+    (R, n, p, p) ``g g^T`` and ``vector`` (R, n, p) ``g``, where ``g = J_b / (sigma rho_b)``
+    (relative noise) or ``J_b / sigma`` (absolute), p = 4 + the nuisances."""
     _, params = _row_arrays(rows)
     albedo, jacobian = albedo_jacobian(*(params[n] for n in PARAMETERS), candidates, params["eta"],
-                                       thickness_mm, gamma, exit_fraction)
-    variance = (noise.sigma * albedo) ** 2 if noise.kind == "relative" else np.full(albedo.shape, noise.sigma ** 2)
-    return np.einsum("rbi,rbj->rbij", jacobian, jacobian) / variance[..., None, None]
+                                       thickness_mm, gamma, exit_fraction, nuisances=tuple(nuisances))
+    deviation = noise.sigma * albedo if noise.kind == "relative" else np.full(albedo.shape, noise.sigma)
+    g = jacobian / deviation[..., None]
+    return np.einsum("rbi,rbj->rbij", g, g), g
 
 
-def _subset_values(per_band, subsets, prior_std, kind, chunk=20000):
-    """Criterion of each subset (M, k) of candidates: sums of per-band information."""
+def _subset_information(outer, vector, subsets, common_to_sigma):
+    """(R, M, p, p) joint information of each subset (M, k) of candidates: the per-band terms
+    summed, less the band-common noise's share. With relative covariance
+    ``sigma^2 (I + c^2 1 1^T)`` (``c`` = ``common_to_sigma``), Sherman-Morrison gives
+    ``F = sum g g^T - c^2 / (1 + k c^2) (sum g)(sum g)^T``."""
+    information = outer[:, subsets].sum(axis=2)
+    if common_to_sigma > 0:
+        total = vector[:, subsets].sum(axis=2)  # (R, M, p)
+        k = subsets.shape[1]
+        information = information - (common_to_sigma ** 2 / (1.0 + k * common_to_sigma ** 2)) * np.einsum(
+            "rmi,rmj->rmij", total, total)
+    return information
+
+
+def _subset_values(terms, subsets, prior_std, kind, nuisance_std, common_to_sigma, chunk=20000):
+    """Criterion of each subset (M, k) of candidates (:func:`_per_band_terms`)."""
     scale = table2_scale()
+    outer, vector = terms
     out = np.empty(len(subsets))
     for start in range(0, len(subsets), chunk):
         part = subsets[start:start + chunk]
-        information = per_band[:, part].sum(axis=2)  # (R, M, 4, 4)
+        joint = _subset_information(outer, vector, part, common_to_sigma)  # (R, M, p, p)
+        information = marginal_information(joint, nuisance_std)
         prior = None if prior_std is None else prior_std[:, None, :]
         _, std, _ = bound_from_information(information, scale, prior)
         out[start:start + len(part)] = criterion_value(np.moveaxis(std / scale, 0, 1), kind)
@@ -447,10 +561,12 @@ def _subset_values(per_band, subsets, prior_std, kind, chunk=20000):
 
 
 def design_bands(candidates, k, noise, criterion="mean", search="greedy", rows=None, prior=None,
-                 thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAULT_GAMMA, exit_fraction=None) -> BandDesign:
+                 thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAULT_GAMMA, exit_fraction=None,
+                 nuisances=None) -> BandDesign:
     """Pick ``k`` of ``candidates`` (bands) that minimize ``criterion`` (:data:`CRITERIA`) over
-    Table 2 rows, under white ``noise`` (independent bands: the information of a set is the sum
-    of its bands').
+    Table 2 rows, under parametric ``noise`` (relative, with its band-common part, or absolute:
+    the information of a set follows from its bands' terms, :func:`_subset_information`), with
+    ``nuisances`` marginalized (:func:`check_nuisances`).
 
     ``search="exhaustive"`` evaluates every subset of size ``k`` (refused beyond
     :data:`EXHAUSTIVE_LIMIT` subsets); ``"greedy"`` starts from the exhaustive best set of
@@ -458,9 +574,9 @@ def design_bands(candidates, k, noise, criterion="mean", search="greedy", rows=N
     greedy start from one band has nothing to compare) and then adds, one at a time, the
     candidate that lowers the criterion most."""
     candidates = list(candidates)
-    if not noise.white:
-        raise ValueError("the design mode needs white noise (relative or absolute): a measured band "
-                         "covariance belongs to one band set")
+    if not noise.parametric:
+        raise ValueError("the design mode needs a parametric noise model (relative or absolute): a "
+                         "measured band covariance belongs to one band set")
     if not (isinstance(k, int) and 1 <= k <= len(candidates)):
         raise ValueError(f"k must be an integer in [1, {len(candidates)}] (the number of candidates), got {k!r}")
     if search not in ("greedy", "exhaustive"):
@@ -468,7 +584,10 @@ def design_bands(candidates, k, noise, criterion="mean", search="greedy", rows=N
     criterion_value(np.zeros((1, 4)), criterion)  # validates the name
     rows, _ = _row_arrays(rows)
     prior_std = prior_spreads(prior, rows)
-    per_band = _per_band_information(candidates, noise, rows, thickness_mm, gamma, exit_fraction)
+    nuisances = check_nuisances(nuisances)
+    terms = _per_band_terms(candidates, noise, rows, thickness_mm, gamma, exit_fraction, nuisances)
+    nuisance_std = list(nuisances.values())
+    common_to_sigma = noise.common / noise.sigma
     n = len(candidates)
 
     def exhaustive(size):
@@ -477,7 +596,7 @@ def design_bands(candidates, k, noise, criterion="mean", search="greedy", rows=N
             raise ValueError(f"an exhaustive search of {size} of {n} candidates is {count} subsets "
                              f"(limit {EXHAUSTIVE_LIMIT}); use search='greedy'")
         subsets = np.array(list(itertools.combinations(range(n), size)), dtype=np.int64)
-        values = _subset_values(per_band, subsets, prior_std, criterion)
+        values = _subset_values(terms, subsets, prior_std, criterion, nuisance_std, common_to_sigma)
         best = int(np.argmin(values))
         return list(subsets[best]), float(values[best]), count
 
@@ -489,7 +608,7 @@ def design_bands(candidates, k, noise, criterion="mean", search="greedy", rows=N
     while len(chosen) < k:
         rest = [i for i in range(n) if i not in chosen]
         subsets = np.array([chosen + [i] for i in rest], dtype=np.int64)
-        values = _subset_values(per_band, subsets, prior_std, criterion)
+        values = _subset_values(terms, subsets, prior_std, criterion, nuisance_std, common_to_sigma)
         evaluated += len(rest)
         best = int(np.argmin(values))
         chosen, value = chosen + [rest[best]], float(values[best])
@@ -498,7 +617,7 @@ def design_bands(candidates, k, noise, criterion="mean", search="greedy", rows=N
 
 
 def design_comb_pair(periods_nm, phases_nm, noise, criterion="mean", rows=None, prior=None,
-                     thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAULT_GAMMA, exit_fraction=None):
+                     thickness_mm=DEFAULT_THICKNESS_MM, gamma=DEFAULT_GAMMA, exit_fraction=None, nuisances=None):
     """The comb-filter pair (period, phase in nm) whose 6 bands (the default camera's B, G, R
     behind the pair, :func:`polarbssrdf.spectral.comb_pair_bands`) minimize ``criterion``; a
     grid search. Returns ``(period, phase, value, grid)`` with ``grid`` a list of
@@ -509,7 +628,7 @@ def design_comb_pair(periods_nm, phases_nm, noise, criterion="mean", rows=None, 
     for period in periods_nm:
         for phase in phases_nm:
             bounds = band_bounds(comb_pair_bands(period, phase), noise, rows, prior, thickness_mm, gamma,
-                                 exit_fraction)
+                                 exit_fraction, nuisances)
             grid.append((float(period), float(phase), bounds.criterion(criterion)))
     if not grid:
         raise ValueError("the comb-filter grid is empty")
@@ -550,6 +669,9 @@ def report_json(bounds: BandBounds, pins=None) -> dict:
                   for b in bounds.bands],
         "noise": bounds.noise.to_json(),
         "prior": bounds.prior,
+        "nuisances": {"marginalized_prior_std": dict(bounds.nuisances),
+                      "held": [n for n in NUISANCES if n not in bounds.nuisances],
+                      "units": {"thickness_mm": "mm", "gamma": "fraction", "eta": "1"}},
         "bound": "bayesian" if bounds.prior is not None else "cramer-rao",
         "criteria": {kind: _number(bounds.criterion(kind)) for kind in CRITERIA},
         "criteria_meaning": dict(CRITERIA),
@@ -584,6 +706,7 @@ def format_report(bounds: BandBounds, pins=None) -> str:
     scale = table2_scale()
     lines = [f"bands: {', '.join(f'{b.name} ({b.centroid_nm:.0f} nm)' for b in bounds.bands)}",
              f"noise: {describe_noise(bounds.noise)}" + (f"; prior: {bounds.prior}" if bounds.prior else ""),
+             f"skin's other unknowns: {describe_nuisances(bounds.nuisances)}",
              f"{'Bayesian' if bounds.prior is not None else 'Cramér-Rao'} bound, standard deviation "
              "(volume fraction) and % of the Table 2 range:",
              f"{'row':<14}" + "".join(f"{n:>18}" for n in PARAMETERS) + f"{'condition':>12}"]
@@ -606,9 +729,23 @@ def format_report(bounds: BandBounds, pins=None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def describe_nuisances(nuisances: dict) -> str:
+    """One line: which of :data:`~.nuisances.NUISANCES` are marginalized (with their prior std)
+    and which are held at their values."""
+    units = {"thickness_mm": " mm", "gamma": "", "eta": ""}
+    parts = []
+    if nuisances:
+        parts.append("marginalized (prior std) " + ", ".join(f"{n} {v:.3g}{units[n]}" for n, v in nuisances.items()))
+    held = [n for n in NUISANCES if n not in nuisances]
+    if held:
+        parts.append("held at their values: " + ", ".join(held))
+    return "; ".join(parts)
+
+
 def describe_noise(noise: NoiseModel) -> str:
     if noise.kind == "relative":
-        return f"white, {100 * noise.sigma:g}% of the albedo per band"
+        common = f" + {100 * noise.common:g}% common to all bands" if noise.common > 0 else ""
+        return f"white, {100 * noise.sigma:g}% of the albedo per band{common}"
     if noise.kind == "absolute":
         return f"white, {noise.sigma:g} albedo units per band"
     rms = np.sqrt(np.diag(noise.matrix))

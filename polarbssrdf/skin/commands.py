@@ -103,6 +103,14 @@ def _add_noise_options(parser, covariance):
         noise.add_argument("--covariance", metavar="FILE.json",
                            help='band covariance of relative albedo errors: {"bands": [...], "covariance": '
                                 "[[...]]}")
+    parser.add_argument("--noise-common", type=float, metavar="SIGMA",
+                        help="a relative error every band shares, beside --noise (default 0.01, the fit's "
+                             "common_noise; 0 for independent bands)")
+    parser.add_argument("--nuisances", default="default", metavar="SPEC",
+                        help="the skin's other unknowns marginalized in the bound: 'default' (thickness_mm, "
+                             "gamma and eta at the biophysical fit's prior spreads), 'none' (held at --thickness, "
+                             "--gamma and each row's eta), or name=std pairs, e.g. "
+                             "'thickness_mm=0.05,gamma=0.08,eta=0.015'")
     parser.add_argument("--prior", choices=("row", "rows"),
                         help="Bayesian bound with a Gaussian prior: each row's Table 2 (std), or the spread "
                              "of the eight Table 2 means")
@@ -150,11 +158,35 @@ def run_fit(args) -> int:
 
 
 def _noise(args):
-    if getattr(args, "covariance", None):
-        return info.read_covariance(args.covariance)
-    if args.noise_absolute is not None:
+    if getattr(args, "covariance", None) or args.noise_absolute is not None:
+        if args.noise_common:
+            raise ValueError("--noise-common goes with the relative --noise (a --covariance file holds its own "
+                             "common part)")
+        if getattr(args, "covariance", None):
+            return info.read_covariance(args.covariance)
         return info.white_noise(args.noise_absolute, relative=False)
-    return info.white_noise(0.01 if args.noise is None else args.noise)
+    return info.white_noise(0.01 if args.noise is None else args.noise,
+                            common=0.01 if args.noise_common is None else args.noise_common)
+
+
+def _nuisances(args):
+    """``--nuisances`` as :func:`~polarbssrdf.skin.band_information.check_nuisances` takes it."""
+    spec = args.nuisances.strip()
+    if spec in ("default", "none"):
+        return None if spec == "none" else "default"
+    out = {}
+    for item in spec.split(","):
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--nuisances: expected 'default', 'none' or name=std pairs, got {item!r}") from None
+        if not sep:
+            raise ValueError(f"--nuisances: expected 'default', 'none' or name=std pairs, got {item!r}")
+    try:
+        return info.check_nuisances(out)
+    except ValueError as error:
+        raise ValueError(f"--nuisances: {error}") from None
 
 
 def _check_layers(args):
@@ -198,7 +230,7 @@ def run_bands(args) -> int:
     noise = _noise(args)
     try:
         bounds = info.band_bounds(bands, noise, prior=args.prior, thickness_mm=args.thickness, gamma=args.gamma,
-                                  exit_fraction=_exit_fraction())
+                                  exit_fraction=_exit_fraction(), nuisances=_nuisances(args))
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
     pins = info.band_pins(bounds, args.thickness, args.gamma, _exit_fraction())
@@ -214,7 +246,8 @@ def run_design(args) -> int:
 
     _check_layers(args)
     noise = _noise(args)
-    layers = {"thickness_mm": args.thickness, "gamma": args.gamma, "exit_fraction": _exit_fraction()}
+    layers = {"thickness_mm": args.thickness, "gamma": args.gamma, "exit_fraction": _exit_fraction(),
+              "nuisances": _nuisances(args)}
     default = info.band_bounds(shipped_default_bands(), noise, prior=args.prior, **layers)
     if args.filter_pair:
         periods, phases = parse_wavelength_range(args.periods), parse_wavelength_range(args.phases)

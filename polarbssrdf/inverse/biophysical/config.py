@@ -20,13 +20,8 @@ from polarbssrdf.io.jsonfile import (
     json_type,
 )
 from polarbssrdf.skin.inversion import BOUNDS as INVERSION_BOUNDS
+from polarbssrdf.skin.nuisances import DEFAULT_NUISANCE_MEAN, DEFAULT_NUISANCE_STD, NUISANCES
 from polarbssrdf.skin.quadrature import DESIGN_BOX, SPECTRAL_METHODS
-
-NUISANCES = ("thickness_mm", "gamma", "eta")
-"""The skin's other unknowns: epidermal thickness (mm), the blood's oxygen fraction and the
-refractive index. The fit holds them (at ``thickness_mm``, ``gamma`` and the input index
-map) and marginalizes them in the chromophores' std: their face values by
-``nuisance_mean``'s std, their variation within the face by ``nuisance_std``."""
 
 PRIORS = ("matern", "none")
 """The maps' priors (:attr:`BiophysicalConfig.prior`)."""
@@ -34,18 +29,11 @@ PRIORS = ("matern", "none")
 NOISE_MODELS = ("fit", "fixed")
 """How the albedo noise is set (:attr:`BiophysicalConfig.noise`)."""
 
+OXYGENATION_MODES = ("fit", "held")
+"""How the face's oxygenation is set (:attr:`BiophysicalConfig.oxygenation`)."""
+
 STD_NOISE_MODELS = ("correlated", "projected", "white")
 """How the reported std treats the noise between texels (:attr:`BiophysicalConfig.std_noise`)."""
-
-DEFAULT_NUISANCE_STD = {"thickness_mm": 0.01, "gamma": 0.02, "eta": 0.015}
-"""Within-face spread of the nuisance maps: thickness (mm) as the spread of the facial sites'
-means in high-frequency ultrasound (0.17-0.22 mm over eight sites, Ji et al., BMC Medical
-Imaging 22:113, 2022), oxygenation a stated guess (regions at rest differ by a few percent),
-the index as the static stage's typical error (demo: MAE 0.013)."""
-
-DEFAULT_NUISANCE_MEAN = {"thickness_mm": [0.25, 0.05], "gamma": [0.75, 0.08]}
-"""``[mean, std]`` of a face's thickness (mm) and oxygenation: the skin model's values (Donner
-and Jensen 2006; Donner et al. 2008) with the spread between people and sites."""
 
 
 @dataclasses.dataclass
@@ -118,10 +106,15 @@ class BiophysicalConfig:
         Block size (mm) of the start's per-texel inversion; 0 inverts at full resolution.
     bounds : dict
         Physical box of each chromophore map (those of the per-texel inversion by default).
+    oxygenation : {"fit", "held"}
+        ``"fit"`` (default): the face's oxygenation is estimated from the albedo's band
+        shape before the maps are fitted
+        (:func:`~polarbssrdf.inverse.biophysical.oxygenation.face_oxygenation`), with its
+        std in place of ``nuisance_mean["gamma"]``'s; ``"held"`` renders at ``gamma``.
     thickness_mm, gamma, eta : float
         The face's epidermal thickness (mm) and oxygenation the model is rendered at (their
-        uncertainty, ``nuisance_mean``'s std, enters the std); the index where the input
-        has no ``eta`` map.
+        uncertainty, ``nuisance_mean``'s std, enters the std; ``gamma`` only where
+        ``oxygenation`` is ``"held"``); the index where the input has no ``eta`` map.
     spectral : {"integral", "effective"}
         The model of a band value: ``"integral"`` (default) the band integral a camera
         records, by the bands' spectral quadrature
@@ -147,6 +140,7 @@ class BiophysicalConfig:
     common_noise: float = 0.01
     start_texel_mm: float = 2.0
     bounds: dict = dataclasses.field(default_factory=lambda: dict(INVERSION_BOUNDS))
+    oxygenation: str = "fit"
     thickness_mm: float = 0.25
     gamma: float = 0.75
     eta: float = 1.4
@@ -177,6 +171,7 @@ class BiophysicalConfig:
         check_string(self.noise, "noise", NOISE_MODELS)
         check_string(self.spread, "spread", NOISE_MODELS)
         check_string(self.std_noise, "std_noise", STD_NOISE_MODELS)
+        check_string(self.oxygenation, "oxygenation", OXYGENATION_MODES)
         check_string(self.spectral, "spectral", SPECTRAL_METHODS)
         if self.correlation_mm != "fit":
             if isinstance(self.correlation_mm, str):

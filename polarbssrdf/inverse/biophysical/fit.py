@@ -26,12 +26,13 @@ texel with their posterior std, by one algorithm:
 A map the bands cannot tell keeps a posterior close to its prior: it stays near its face mean
 with about the prior spread as its std (shrinkage, no threshold deciding that a map is held).
 
-The face's thickness and oxygenation are not estimated: with the default six bands the
-thickness is degenerate with the dermal blood (0.05 mm more epidermis moved the fitted
+The face's oxygenation is estimated first, from the band shape no chromophore can mimic
+(:mod:`.oxygenation`; ``config.oxygenation``). The thickness is not: with the default six
+bands it is degenerate with the dermal blood (0.05 mm more epidermis moved the fitted
 ``C_h_in`` by +0.14 on a cheek III face), and neither a search over per-block inversions
 (noise-free, it found 0.24 mm for a 0.30 mm face: block averaging's own nonlinearity
-outweighs what separates them) nor a Newton step of the problem reduced to the two face
-values (it moved away from the truth) recovered them (docs/biophysical.md).
+outweighs what separates them) nor a Newton step of the problem reduced to the face values
+(it moved away from the truth) recovered it (docs/biophysical.md).
 
 Input albedos are lobe albedos (``rho_sss`` of eq. 19, what the static stage recovers and
 synth's truth maps hold); the skin model's flux ``R_bar`` is ``c(eta) rho_sss``
@@ -51,6 +52,7 @@ from polarbssrdf.inverse.biophysical.config import NUISANCES, BiophysicalConfig
 from polarbssrdf.inverse.biophysical.correlation import albedo_correlation_length
 from polarbssrdf.inverse.biophysical.gauss_newton import PriorTerms, gauss_newton
 from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel, jit_types
+from polarbssrdf.inverse.biophysical.oxygenation import face_oxygenation
 from polarbssrdf.inverse.biophysical.prior import SpatialPrior, noise_spectrum
 from polarbssrdf.inverse.biophysical.problem import DataTerm, NuisanceSensitivity
 from polarbssrdf.inverse.biophysical.start import (
@@ -242,11 +244,17 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     flagged = surface & ~good
     rbar = observed * subsurface_exit_fraction(eta)[None]
 
-    # the face's thickness and oxygenation are held at the config's values, known only as
-    # well as their hyperprior says (module docstring)
+    # the face's thickness is held at the config's value, known only as well as its
+    # hyperprior says; its oxygenation is estimated unless held (module docstring)
     face = {"thickness_mm": float(config.thickness_mm), "gamma": float(config.gamma),
             "thickness_mm_variance": config.nuisance_mean["thickness_mm"][1] ** 2,
             "gamma_variance": config.nuisance_mean["gamma"][1] ** 2}
+    if config.oxygenation == "fit":
+        if progress:
+            progress("bio: the face's oxygenation from the band shape")
+        oxygenation = face_oxygenation(rbar, good, atlas, bands, eta, config, face["thickness_mm"])
+        face.update(gamma=oxygenation.gamma, gamma_variance=oxygenation.std ** 2,
+                    oxygenation=oxygenation.to_json())
     if start is None:
         maps, _ = start_maps(rbar, good, atlas, bands, eta, config, face["thickness_mm"], face["gamma"])
     else:

@@ -10,7 +10,8 @@ Reads the subsurface albedo maps an earlier stage registered in
   thickness and oxygenation, the index's error marginalized), ``residual`` (RMS
   over bands of rendered minus input albedo) and ``flagged`` (1 where the input
   was invalid and the values come from the prior); the metadata's ``noise.face``
-  holds the face's fitted epidermal thickness (mm) and oxygenation;
+  holds the face's held epidermal thickness (mm) and its estimated oxygenation with
+  their variances (``oxygenation``: how the estimate was made);
 * ``bio/previews/<map>_f####.png`` with colour bars and units;
 * ``bio/summary.json``: mean and standard deviation per region and frame in
   the layout of the supplement's Table 2 (:func:`region_summary`).

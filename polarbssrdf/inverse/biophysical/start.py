@@ -63,9 +63,11 @@ def block_mean(values, weight, factor):
         return vs / ws, ws > 0
 
 
-def block_inversion(rbar, valid, atlas, bands, eta, config, block_mm, thickness_mm=None, gamma=None):
+def block_inversion(rbar, valid, atlas, bands, eta, config, block_mm, thickness_mm=None, gamma=None,
+                    table_size="default"):
     """The per-texel inversion of eq. 47 on means over blocks of about ``block_mm``, at
-    ``thickness_mm`` and ``gamma`` (default the config's).
+    ``thickness_mm`` and ``gamma`` (default the config's); ``table_size`` that of the
+    inversion's start table (:func:`~polarbssrdf.skin.inversion.invert_bands`).
 
     Returns ``(maps, ok, factor)``: per block the four parameters and the relative residual
     of every band (``"residual"``, (n_bands, ...); NaN where the block has no valid texel),
@@ -85,7 +87,7 @@ def block_inversion(rbar, valid, atlas, bands, eta, config, block_mm, thickness_
         members = ok & (bins == value)
         result = invert_bands(np.moveaxis(means[:, members], 0, -1), bands,
                               thickness_mm=config.thickness_mm if thickness_mm is None else thickness_mm,
-                              eta=float(value), table_size="default", method=config.spectral,
+                              eta=float(value), table_size=table_size, method=config.spectral,
                               gamma=config.gamma if gamma is None else gamma)
         for name in PARAMETERS:
             coarse_maps[name][members] = getattr(result, name)

@@ -38,7 +38,8 @@ measures faces where it is not)."""
 def _known_skin():
     from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
 
-    return BiophysicalConfig(nuisance_std={"thickness_mm": 0.0, "gamma": 0.0, "eta": 0.0})
+    # the oxygenation held at the truth's value, not estimated: this file's skin is known
+    return BiophysicalConfig(nuisance_std={"thickness_mm": 0.0, "gamma": 0.0, "eta": 0.0}, oxygenation="held")
 
 
 KNOWN_SKIN = _known_skin()

@@ -1,0 +1,41 @@
+"""The skin's other unknowns: what the chromophore fit and the band report hold, and how
+uncertain they are.
+
+Besides the four chromophores, the two-layer skin's band albedo (eq. 47) depends on the
+epidermal thickness (mm), the blood's oxygen fraction ``gamma`` and the refractive index
+``eta``. The biophysical fit holds them (docs/biophysical.md) and marginalizes them in its
+std; the band report (:mod:`.band_information`) marginalizes them in its bound. Both read the
+spreads here, so the two say the same thing about the same skin.
+"""
+
+from __future__ import annotations
+
+import math
+
+NUISANCES = ("thickness_mm", "gamma", "eta")
+"""The skin's other unknowns: epidermal thickness (mm), the blood's oxygen fraction and the
+refractive index."""
+
+DEFAULT_NUISANCE_STD = {"thickness_mm": 0.01, "gamma": 0.02, "eta": 0.015}
+"""Within-face spread of the nuisance maps: thickness (mm) as the spread of the facial sites'
+means in high-frequency ultrasound (0.17-0.22 mm over eight sites, Ji et al., BMC Medical
+Imaging 22:113, 2022), oxygenation a stated guess (regions at rest differ by a few percent),
+the index as the static stage's typical error (demo: MAE 0.013)."""
+
+DEFAULT_NUISANCE_MEAN = {"thickness_mm": [0.25, 0.05], "gamma": [0.75, 0.08]}
+"""``[mean, std]`` of a face's thickness (mm) and oxygenation: the skin model's values (Donner
+and Jensen 2006; Donner et al. 2008) with the spread between people and sites."""
+
+
+def nuisance_prior_std(name: str) -> float:
+    """Prior standard deviation of one texel's value of nuisance ``name`` before the capture is
+    seen: the face value's spread (:data:`DEFAULT_NUISANCE_MEAN`) and the spread within the
+    face (:data:`DEFAULT_NUISANCE_STD`) in quadrature; the index has no face-value spread of
+    its own here because it comes from the static stage with its error."""
+    if name not in NUISANCES:
+        raise ValueError(f"unknown nuisance {name!r}; known: {list(NUISANCES)}")
+    face = DEFAULT_NUISANCE_MEAN.get(name, [None, 0.0])[1]
+    return math.hypot(face, DEFAULT_NUISANCE_STD[name])
+
+
+__all__ = ["NUISANCES", "DEFAULT_NUISANCE_STD", "DEFAULT_NUISANCE_MEAN", "nuisance_prior_std"]
