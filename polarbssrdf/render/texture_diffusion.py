@@ -126,14 +126,21 @@ def _neighbours(axis, geometry, offset, sign):
     module = geometry.module
     UInt32, Int32 = module.UInt32, module.Int32
     rows, cols = geometry.shape
+    # the texture's size enters as kernel inputs, not literals: one compiled blur serves
+    # every texture size (a literal compiled the blur's 40-70 kernels anew per size)
+    sizes = geometry.__dict__.get("_opaque_sizes")
+    if sizes is None:
+        sizes = geometry._opaque_sizes = (dr.opaque(UInt32, cols), dr.opaque(Int32, rows),
+                                          dr.opaque(Int32, cols))
+    cols_u, rows_i, cols_i = sizes
     index = dr.arange(UInt32, rows * cols)
-    row, col = index // cols, index % cols
+    row, col = index // cols_u, index % cols_u
     position = Int32(col if axis == 1 else row)
-    length = cols if axis == 1 else rows
+    length = cols_i if axis == 1 else rows_i
     target = position + sign * offset
     inside = (target >= 0) & (target < length)
     clamped = UInt32(dr.clip(target, 0, length - 1))
-    return inside, (row * cols + clamped if axis == 1 else clamped * cols + col)
+    return inside, (row * cols_u + clamped if axis == 1 else clamped * cols_u + col)
 
 
 def _tap_sums(sources, variances, half_widths, axis, geometry, adjoint=False):
