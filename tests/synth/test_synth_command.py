@@ -9,7 +9,7 @@ from polarbssrdf.io import load_capture
 from polarbssrdf.synth import synthesize as synth_module
 from polarbssrdf.synth.synthesize import SynthesisSettings, synthesize
 
-SMALL = ["--views", "2", "--frames", "2", "--resolution", "32", "--texture", "48", "--spp", "2",
+SMALL = ["--views", "2", "--frames", "2", "--resolution", "32", "--texture", "32", "--spp", "2",
          "--quiet"]
 
 
@@ -56,7 +56,7 @@ def test_refuses_a_non_empty_directory(tmp_path, capsys):
 
 def test_an_interrupted_run_resumes_to_the_same_capture(tmp_path, monkeypatch):
     mi.set_variant("llvm_ad_mono_polarized")
-    settings = SynthesisSettings(object="sphere", views=2, frames=1, resolution=32, texture=48,
+    settings = SynthesisSettings(object="sphere", views=2, frames=1, resolution=32, texture=32,
                                  spp=2, raw=True)
     synthesize(tmp_path / "fresh", settings, progress=False)
 
