@@ -94,8 +94,9 @@ class _Profile:
         gamma = round(float(gamma), 5)
         if gamma not in self.values:
             rbar, valid = self.args[0], self.args[1]
-            # the small start table: its build dominates an evaluation (one per index bin), and the
-            # Levenberg-Marquardt steps that follow reach the same minimum
+            # the small start table: its build dominates an evaluation (one per index bin); with
+            # the default one an evaluation took 3x as long and the issue 31 faces' estimates
+            # moved by 0.0003-0.011, within 1.4 of their std (bench/RESULTS.md)
             maps, ok, factor = block_inversion(*self.args, thickness_mm=self.thickness_mm, gamma=gamma,
                                                table_size="small")
             texels = block_mean(valid.astype(np.float64), np.ones_like(valid, dtype=np.float64), factor)[0]
@@ -131,11 +132,13 @@ def _bracketed_vertex(profile, centre, step, low, high):
 
 def jackknife_std(profile, xs, groups=JACKKNIFE_GROUPS):
     """Delete-a-group jackknife standard deviation of the parabola vertex through ``xs``: the
-    blocks (in texture-row order) split into ``groups`` stripes of equal count, the vertex of
-    the sums without each stripe in turn. NaN where a vertex is undefined."""
+    blocks (in texture-row order) split into ``groups`` stripes of equal count (fewer, of two
+    blocks each, on a face of fewer than ``2 groups`` blocks), the vertex of the sums without
+    each stripe in turn. NaN where a vertex is undefined or there are fewer than 4 blocks."""
     per_block = [profile.blocks[round(float(x), 5)][3] for x in xs]
     n = per_block[0].size
-    if n < 2 * groups:
+    groups = min(groups, n // 2)
+    if groups < 2:
         return float("nan")
     stripe = np.arange(n) * groups // n  # block order is the texture's row-major order
     vertices = []
@@ -182,7 +185,7 @@ def face_oxygenation(rbar, valid, atlas, bands, eta, config, thickness_mm) -> Ox
         if np.isfinite(vertex):
             estimate, curvature, xs = float(np.clip(vertex, lowest[0], lowest[2])), near_curvature, lowest
     spread = jackknife_std(profile, xs) if np.isfinite(curvature) else float("nan")
-    if not np.isfinite(spread):  # no minimum inside the box: the data do not pin it
+    if not np.isfinite(spread):  # no minimum inside the box, or too few blocks to tell
         spread = float(prior_std)
 
     maps, ok, weight, _ = profile.nearest_blocks(estimate)
