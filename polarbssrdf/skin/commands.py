@@ -228,9 +228,10 @@ def run_bands(args) -> int:
     _check_layers(args)
     bands, where = _band_set(args)
     noise = _noise(args)
+    nuisances = _nuisances(args)
     try:
         bounds = info.band_bounds(bands, noise, prior=args.prior, thickness_mm=args.thickness, gamma=args.gamma,
-                                  exit_fraction=_exit_fraction(), nuisances=_nuisances(args))
+                                  exit_fraction=_exit_fraction(), nuisances=nuisances)
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
     pins = info.band_pins(bounds, args.thickness, args.gamma, _exit_fraction())
