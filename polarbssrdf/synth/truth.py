@@ -120,28 +120,12 @@ class TruthSettings:
         if any(std < 0 for std in self.biophysical_std.values()):
             raise ValueError(f"biophysical_std must be >= 0, got {self.biophysical_std}")
         for name, value in self.biophysical.items():
-            if name not in BIOPHYSICAL:
-                raise ValueError(f"unknown biophysical map {name!r}; known: {list(BIOPHYSICAL)}")
-            if len(value) != 4 or not all(_is_number(x) for x in value):
-                raise ValueError(f"biophysical {name}: expected [base, std, low, high], got {list(value)}")
-            base, std, low, high = value
-            if not (0.0 <= low <= base <= high <= 1.0) or std < 0:
-                raise ValueError(f"biophysical {name}: need 0 <= low <= base <= high <= 1 and std >= 0, "
-                                 f"got [{base}, {std}, {low}, {high}]")
+            check_field_spec("biophysical", name, value, BIOPHYSICAL, (0.0, 1.0))
         for index, feature in enumerate(self.features):
             check_feature(feature, f"features[{index}]")
         for name, value in self.skin_layers.items():
-            if name not in DEFAULT_SKIN_LAYERS:
-                raise ValueError(f"unknown skin layer map {name!r}; known: {list(SKIN_LAYERS)}")
-            if len(value) != 4 or not all(_is_number(x) for x in value):
-                raise ValueError(f"skin_layers {name}: expected [base, std, low, high], got {list(value)}")
-            base, std, low, high = value
-            limit_low, limit_high = (0.02, 1.0) if name == "thickness_mm" else (0.0, 1.0)
-            if std < 0:
-                raise ValueError(f"skin_layers {name}: std must be >= 0, got {std}")
-            if not (limit_low <= low <= base <= high <= limit_high):
-                raise ValueError(f"skin_layers {name}: need {limit_low} <= low <= base <= high <= {limit_high}, "
-                                 f"got [{base}, {std}, {low}, {high}]")
+            check_field_spec("skin_layers", name, value, DEFAULT_SKIN_LAYERS,
+                             (0.02, 1.0) if name == "thickness_mm" else (0.0, 1.0))
         if self.correlation_mm <= 0:
             raise ValueError("correlation_mm must be > 0")
 
@@ -166,6 +150,22 @@ class TruthSettings:
 
 def _is_number(value):
     return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
+
+
+def check_field_spec(group, name, value, known, limits):
+    """A ``[base, std, low, high]`` entry ``name`` of ``group`` (a truth field: its face value,
+    spread and clip range): ``ValueError`` naming both unless ``name`` is in ``known``, the four
+    are numbers, ``std >= 0`` and ``limits[0] <= low <= base <= high <= limits[1]``."""
+    if name not in known:
+        raise ValueError(f"{group}: unknown map {name!r}; known: {list(known)}")
+    if isinstance(value, str) or len(value) != 4 or not all(_is_number(x) for x in value):
+        raise ValueError(f"{group} {name}: expected [base, std, low, high], got {value!r}")
+    base, std, low, high = value
+    if std < 0:
+        raise ValueError(f"{group} {name}: std must be >= 0, got {std}")
+    if not (limits[0] <= low <= base <= high <= limits[1]):
+        raise ValueError(f"{group} {name}: need {limits[0]} <= low <= base <= high <= {limits[1]}, "
+                         f"got [{base}, {std}, {low}, {high}]")
 
 
 def check_feature(feature, where="feature"):
