@@ -214,17 +214,19 @@ def layer_profile_kernels(spectral, skin):
     return kernels
 
 
-def band_exitances(irradiance, totals, kernels, weights, atlas, tolerance=1e-4):
+def band_exitances(irradiance, totals, kernels, weights, atlas, tolerance=1e-4, round_trips=None):
     """Per band, the exitance below the surface (eq. 46) integrated over the band: ``M_b = sum_q
     w_bq M_q`` with ``M_q`` the :func:`layered_exitance` of quadrature node ``q`` (its own
     layer totals and profiles; the diffusion depends on wavelength as the reflectance does).
 
     ``totals``, ``kernels``: per node (:func:`layer_totals_maps`, :func:`layer_profile_kernels`);
     ``weights``: the quadrature's (n_bands, Q). Each node is diffused once, whatever the
-    bands that share it. NumPy or Dr.Jit inputs as :func:`layered_exitance` takes them."""
+    bands that share it. NumPy or Dr.Jit inputs as :func:`layered_exitance` takes them
+    (``tolerance``, ``round_trips``: its series)."""
     weights = np.asarray(weights, dtype=np.float64)
     used = np.flatnonzero(np.any(weights > 0, axis=0))
-    nodes = {q: layered_exitance(irradiance, totals[q], kernels[q], atlas, tolerance) for q in used}
+    nodes = {q: layered_exitance(irradiance, totals[q], kernels[q], atlas, tolerance, round_trips=round_trips)
+             for q in used}
 
     def scaled(value, weight):
         if isinstance(value, np.ndarray):
@@ -245,7 +247,8 @@ def band_exitances(irradiance, totals, kernels, weights, atlas, tolerance=1e-4):
     return out
 
 
-def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_interreflections=16):
+def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_interreflections=16,
+                     round_trips=None):
     """Exitance below the surface from the two layers' profiles blurred in texture space; eq. 46.
 
     ``M = G_Rof * (R_of E) + G_Tob * (T_ob S)``, with ``S`` the light the
@@ -269,6 +272,17 @@ def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_int
     kernels : dict
         That band's normalized kernels (:func:`layer_profile_kernels`).
     atlas : TexelAtlas
+    tolerance, max_interreflections : float, int
+        Where the series stops (see above).
+    round_trips : int, optional
+        An approximation (None, the default, sums the series): this many
+        round trips between the layers are blurred, the rest of the series is
+        closed per texel as the geometric tail ``u_N r / (1 - r)`` of the last
+        term ``u_N``, with ``r = u_N / u_(N-1)`` the decay the last blurred
+        round trip showed (``R_in R_out_b`` if none was blurred; exact for maps
+        constant over the blurs' reach). The biophysical fit uses it; synth
+        does not (error measured in the tests: the observed decay closes a face
+        with freckles 4-10x closer than the local ``R_in R_out_b``).
     """
     from_numpy = isinstance(totals.R_out_f, np.ndarray) and isinstance(irradiance, np.ndarray)
 
@@ -290,16 +304,39 @@ def layered_exitance(irradiance, totals, kernels, atlas, tolerance=1e-4, max_int
     # layers shrinks the light by at least max(R_in) max(R_out_b): the terms that
     # keep every later one below ``tolerance`` of the first are known up front (one
     # read-back instead of one per term)
-    ratio = peak(totals.R_in) * peak(totals.R_out_b)
-    rounds = max_interreflections if ratio >= 1.0 else (
-        0 if ratio <= 0.0 else min(max_interreflections,
-                                   int(np.ceil(np.log(tolerance) / np.log(ratio)))))
+    if round_trips is None:
+        ratio = peak(totals.R_in) * peak(totals.R_out_b)
+        rounds = max_interreflections if ratio >= 1.0 else (
+            0 if ratio <= 0.0 else min(max_interreflections,
+                                       int(np.ceil(np.log(tolerance) / np.log(ratio)))))
+    else:
+        rounds = int(round_trips)
+    previous = None
     for _ in range(rounds):
+        previous = upward
         upward = blur("R_in", totals.R_in * blur("R_out_b", totals.R_out_b * upward))
         total_upward = total_upward + upward
+    if round_trips is not None:
+        if previous is None:  # no round trip blurred: the local ratio
+            ratio = totals.R_in * totals.R_out_b
+        else:  # the decay the last blurred round trip showed, per texel
+            ratio = _clipped_ratio(upward, previous)
+        total_upward = total_upward + upward * ratio / (1.0 - ratio)
     exitance = (blur("R_out_f", totals.R_out_f * irradiance)
                 + blur("T_out_b", totals.T_out_b * total_upward))
     return exitance.astype(np.float32) if from_numpy else exitance
+
+
+def _clipped_ratio(numerator, denominator, largest=0.95):
+    """``numerator / denominator`` per texel in [0, largest] (0 where the denominator is 0)."""
+    if isinstance(numerator, np.ndarray):
+        safe = np.where(denominator > 0, denominator, 1.0)
+        return np.clip(np.where(denominator > 0, numerator / safe, 0.0), 0.0, largest)
+    import drjit as dr
+
+    positive = denominator.array > 0
+    ratio = dr.select(positive, numerator.array / dr.select(positive, denominator.array, 1.0), 0.0)
+    return type(numerator)(dr.clip(ratio, 0.0, largest), numerator.shape)
 
 
 _EXIT_QUADRATURE = 64

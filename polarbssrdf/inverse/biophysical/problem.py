@@ -23,6 +23,8 @@ The data term is ``1/2 sum_i r_i^T S^-1 r_i`` over texels of the relative residu
 
 from __future__ import annotations
 
+import hashlib
+
 import drjit as dr
 import numpy as np
 
@@ -72,6 +74,16 @@ class NuisanceSensitivity:
         return out
 
 
+def _maps_key(maps, names):
+    """A digest of the maps a local Jacobian depends on (the chromophores, the nuisances, names)."""
+    digest = hashlib.blake2b(repr(tuple(names)).encode(), digest_size=16)
+    for name in PARAMETERS + tuple(NUISANCES):
+        if name in maps:
+            digest.update(name.encode())
+            digest.update(np.ascontiguousarray(maps[name], dtype=np.float64).tobytes())
+    return digest.hexdigest()
+
+
 class DataTerm:
     """Eq. 41 over Dr.Jit parameter arrays: the predicted albedo (module docstring) and the
     loss ``1/2 sum_i r_i^T S^-1 r_i`` with the bands' noise ``S``.
@@ -94,12 +106,14 @@ class DataTerm:
         self.observed = [to_jit(Float, observed[b].ravel(), np.float32) for b in range(len(model.bands))]
         self.sensitivity = None
         self._sensitivity_jit = {}
+        self._jacobian_cache = None
         self.set_noise(sigma, common)
 
     def set_sensitivity(self, sensitivity):
         """Use these nuisance sensitivities (:class:`NuisanceSensitivity`) from now on."""
         Float, _, _ = jit_types()
         self.sensitivity = sensitivity
+        self._jacobian_cache = None
         self._sensitivity_jit = {name: [to_jit(Float, row, np.float32) for row in sensitivity.full(name)]
                                  for name in NUISANCES}
 
@@ -161,6 +175,9 @@ class DataTerm:
         sensitivity."""
 
         Float, _, _ = jit_types()
+        key = (_maps_key(maps, names), self.model.thickness_mm, self.model.gamma)
+        if self._jacobian_cache is not None and self._jacobian_cache[0] == key:
+            return self._jacobian_cache[1]
         params = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in PARAMETERS}
         nuisance_params = {n: to_jit(Float, np.ravel(maps[n]), np.float32) for n in NUISANCES if n in maps}
         factors = [self.nuisance_factor(nuisance_params, b) for b in range(len(self.model.bands))]
@@ -180,7 +197,12 @@ class DataTerm:
             columns.append(np.stack([np.array(dr.grad(v), dtype=np.float64) * factors[b]
                                      for b, v in enumerate(values)], axis=-1))
             dr.disable_grad(params[name])
-        return np.stack(columns, axis=-1)
+        jacobian = np.stack(columns, axis=-1)
+        jacobian.flags.writeable = False
+        # a round's noise, spread and posterior and the next round's first step all ask at
+        # the same maps: four forward passes over every node each time otherwise
+        self._jacobian_cache = (key, jacobian)
+        return jacobian
 
     def precision(self, maps, names, movable):
         """``(n, k, k)`` Gauss-Newton normal matrix ``J_z^T (I - kappa v v^T) J_z`` of the

@@ -375,3 +375,38 @@ def test_projected_residual_correlation_ignores_what_the_maps_absorb():
     assert projected[(0, 1)] == pytest.approx(0.5, abs=0.03)
     for offset in ((1, 0), (0, 2), (2, 2)):
         assert abs(projected[offset]) < 0.03, offset
+
+
+def test_the_local_jacobian_is_reused_only_at_the_same_maps_and_skin(face):
+    """The data term keeps its last local Jacobian (a round's noise, spreads and the next
+    step ask at the same maps); a moved map, a new oxygenation or new sensitivities
+    recompute it, and the kept one is the fresh one."""
+    from polarbssrdf.inverse.biophysical.fit import fit_kernels
+    from polarbssrdf.inverse.biophysical.model import BiophysicalModel
+    from polarbssrdf.inverse.biophysical.problem import DataTerm
+    from polarbssrdf.skin.quadrature import spectral_quadrature
+
+    atlas, maps, bands, albedo, _ = face
+    quadrature = spectral_quadrature(bands)
+
+    def fresh_term(gamma=0.7):
+        model = BiophysicalModel(quadrature, atlas, maps["eta"], thickness_mm=0.22, gamma=gamma)
+        model.kernels = fit_kernels(maps, int(np.flatnonzero(atlas.valid.ravel())[50]), model)
+        return DataTerm(model, albedo.astype(np.float64), atlas.valid.astype(np.float64),
+                        np.full(len(bands), 0.01), 0.005)
+
+    data = fresh_term()
+    point = {n: maps[n].astype(np.float64) for n in PARAMETERS}
+    names = list(PARAMETERS)
+    first = data.local_jacobian(point, names)
+    assert data.local_jacobian(point, names) is first
+    assert not first.flags.writeable
+    moved = dict(point, C_h_in=point["C_h_in"] * 1.2)
+    second = data.local_jacobian(moved, names)
+    assert second is not first
+    np.testing.assert_array_equal(second, fresh_term().local_jacobian(moved, names))
+    assert not np.allclose(second[..., 3], first[..., 3])
+    data.model.set_skin(gamma=0.72)
+    third = data.local_jacobian(moved, names)
+    np.testing.assert_array_equal(third, fresh_term(0.72).local_jacobian(moved, names))
+    assert not np.allclose(third, second)
