@@ -242,8 +242,8 @@ class BiophysicalModel:
 
     def render_bands(self, params):
         """Per band, the lobe albedo ``rho_sss`` (flat Dr.Jit Float): the band integral of eq. 46
-        under unit irradiance (the layers' series closed after :data:`ROUND_TRIPS`), / c(eta). ``params``: ``name -> flat Dr.Jit Float`` (T*T) of
-        the four maps."""
+        under unit irradiance (the layers' series closed after :data:`ROUND_TRIPS`), / c(eta).
+        ``params``: ``name -> flat Dr.Jit Float`` (T*T) of the four maps."""
         _, _, TensorXf = jit_types()
         flat = [self.layer_totals(q, params) for q in range(self.nodes)]
         # every node's totals in one kernel, kept: left lazy, each blur and each peak the
