@@ -266,7 +266,7 @@ def test_bad_input_is_an_error_or_flagged(face):
 
 
 def test_with_one_percent_noise_the_fit_beats_the_per_texel_inversion():
-    """1% multiplicative noise on 256^2 albedo maps: the full-resolution fit (its default prior)
+    """1% multiplicative noise on 128^2 albedo maps: the full-resolution fit (its default prior)
     against the per-texel inversion (eq. 47 at every texel) and the best constant map."""
     from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
     from polarbssrdf.inverse.biophysical.fit import BiophysicalConfig, fit_biophysical
@@ -277,7 +277,7 @@ def test_with_one_percent_noise_the_fit_beats_the_per_texel_inversion():
     from polarbssrdf.synth.truth import TruthSettings, truth_maps
 
     mi.set_variant("llvm_ad_mono_polarized")
-    atlas = texel_atlas(to_mitsuba(face_mesh(1)), 256)
+    atlas = texel_atlas(to_mitsuba(face_mesh(1)), 128)
     maps = truth_maps(atlas, TruthSettings(skin=SKIN, biophysical_std=STD, skin_layers=KNOWN_LAYERS),
                       np.random.default_rng(1))
     bands = default_bands()
