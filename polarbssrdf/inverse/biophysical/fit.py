@@ -10,8 +10,9 @@ texel with their posterior std, by one algorithm:
   and the input index map; the bands' own and band-common noise; a Matérn prior on every
   chromophore map around its face mean;
 * the start (:mod:`.start`): the per-texel inversion of eq. 47 on block means, and the
-  face means from larger blocks (:func:`~.start.block_face_means`, combined with Table 2's
-  rows), which the maps' own mean is then held near;
+  face means from larger blocks (:func:`~.start.block_face_means`, their std with what the
+  face's held thickness and oxygenation may move them, :func:`~.start.face_mean_skin_shifts`,
+  combined with Table 2's rows), which the maps' own mean is then held near;
 * one projected Gauss-Newton over the chromophore maps (:mod:`.gauss_newton`);
 * one outer loop (at most ``rounds``): between Gauss-Newton runs the layer kernels are
   fitted at the median texel, the noise is re-estimated from the residuals and the
@@ -58,6 +59,7 @@ from polarbssrdf.inverse.biophysical.problem import DataTerm, NuisanceSensitivit
 from polarbssrdf.inverse.biophysical.start import (
     albedo_stack,
     block_face_means,
+    face_mean_skin_shifts,
     fill_from_neighbours,
     start_maps,
 )
@@ -282,8 +284,17 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
         spatial = SpatialPrior(surface, atlas.texel_size_mm, length["correlation_mm"], config.prior_order)
     chromophores = [n for n in PARAMETERS if n not in held]
     bounds = {n: config.bounds[n] for n in chromophores}
-    hyper = face_mean_hyperprior(config, chromophores, block_face_means(
-        rbar, good, atlas, bands, eta, config, face["thickness_mm"], face["gamma"]) if spatial is not None else {})
+    blocks = {}
+    if spatial is not None:
+        blocks = block_face_means(rbar, good, atlas, bands, eta, config, face["thickness_mm"], face["gamma"])
+        # the face values the std marginalizes are not known: their share in the face means
+        face_std = {n: float(np.sqrt(face[f"{n}_variance"])) for n in ("thickness_mm", "gamma")
+                    if config.nuisance_std[n] > 0}
+        shifts = face_mean_skin_shifts(rbar, good, atlas, bands, eta, config, face["thickness_mm"],
+                                       face["gamma"], face_std)
+        blocks = {n: (mean, float(np.hypot(std, shifts[n]))) for n, (mean, std) in blocks.items()}
+        face["face_mean_skin_std"] = shifts
+    hyper = face_mean_hyperprior(config, chromophores, blocks)
     # a mean from the blocks is fixed there (with its variance for the std); else the face
     # mean is fitted under the population hyperprior
     known = [hyper[n][1] if spatial is not None else 0.0 for n in chromophores]
