@@ -38,6 +38,18 @@ Rows (``--rows``; the default is all of the demo-face rows):
                    1% white (multiplicative) noise and truth eta, every
                    surface texel confident; ``truth_albedo_clean`` without the
                    noise
+``skin_off``       a capture whose epidermis is thicker (0.28 mm) and blood
+                   less oxygenated (0.71) than the fit's start values (0.25,
+                   0.75; spreads as synth's defaults), run as a user would:
+                   the thickness held at the model's with its std
+                   marginalized, the oxygenation estimated
+``skin_off_*``     the same capture and polarimetric maps, the biophysical
+                   stage given the truth's face mean of ``thickness`` (held
+                   at truth), of ``gamma`` (held at truth) or ``skin`` (both)
+``skin_off_truth_albedo[_*]``
+                   the same four, fed the truth albedo with 1% noise and the
+                   truth eta as ``truth_albedo`` (the skin unknowns' share
+                   without the polarimetric stages' error)
 =================  ==========================================================
 
 ``glossy_held`` is not a row: the static stage starts every map from a
@@ -76,6 +88,11 @@ import numpy as np
 PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
 DEMO_ROWS = ("raw", "noise_free", "geometry_held", "eta_held", "views_16", "views_32",
              "no_diffusion", "no_diffusion_noise_free", "truth_albedo", "truth_albedo_clean")
+SKIN_OFF_LAYERS = (("thickness_mm", (0.28, 0.025, 0.10, 0.40)), ("gamma", (0.71, 0.03, 0.50, 0.95)))
+"""synth's ``skin_layers`` of the ``skin_off`` rows: off the fit's start values (0.25 mm, 0.75)
+by what the six off-prior faces of ``bench/bio_off_prior.py`` use, synth's default spreads."""
+HELD_AT_TRUTH = {"thickness": ("thickness_mm",), "gamma": ("gamma",), "skin": ("thickness_mm", "gamma")}
+"""Row suffix -> the skin unknowns the biophysical stage is given at the truth's face mean."""
 SWEEP_SKINS = (("forehead", "I"), ("cheek", "I"), ("forehead", "III"), ("cheek", "III"),
                ("forehead", "IV"), ("cheek", "IV"))
 TRUTH_ALBEDO_NOISE = 0.01
@@ -94,6 +111,7 @@ class CaptureSpec:
     skin: tuple = ("forehead", "II")
     spp: int = 8
     seed: int = 0
+    skin_layers: tuple = ()  # synth's (name, (base, std, low, high)) pairs; () for its defaults
 
     @property
     def resolution(self):
@@ -113,6 +131,7 @@ class Row:
     capture: CaptureSpec
     geometry_held: bool = False
     bio_input: str = "stages"  # "stages", "eta_held", "truth_albedo", "truth_albedo_clean"
+    held_at_truth: tuple = ()  # skin unknowns the biophysical stage is given at the truth's mean
 
 
 def demo_rows(texture, frames):
@@ -130,7 +149,21 @@ def demo_rows(texture, frames):
             raw, raw=False, subsurface_diffusion=False)),
         "truth_albedo": Row("truth_albedo", raw, bio_input="truth_albedo"),
         "truth_albedo_clean": Row("truth_albedo_clean", raw, bio_input="truth_albedo_clean"),
+        **skin_off_rows(dataclasses.replace(raw, skin_layers=SKIN_OFF_LAYERS)),
     }
+
+
+def skin_off_rows(capture):
+    """The ``skin_off`` rows on ``capture``: estimated, and held at truth per :data:`HELD_AT_TRUTH`,
+    from the polarimetric stages' maps and from the truth albedo."""
+    rows = {}
+    for source, bio_input in (("", "stages"), ("_truth_albedo", "truth_albedo")):
+        name = f"skin_off{source}"
+        rows[name] = Row(name, capture, bio_input=bio_input)
+        for suffix, held in HELD_AT_TRUTH.items():
+            rows[f"{name}_{suffix}"] = Row(f"{name}_{suffix}", capture, bio_input=bio_input,
+                                           held_at_truth=held)
+    return rows
 
 
 def sweep_rows(texture):
@@ -175,7 +208,10 @@ def truth_settings(spec):
 
     reflectance = dict(DEFAULT_REFLECTANCE)
     reflectance.update({k: tuple(v) for k, v in TRUTH_SETTINGS["reflectance"].items()})
-    return TruthSettings(reflectance=reflectance, skin=tuple(spec.skin))
+    from polarbssrdf.synth.truth import DEFAULT_SKIN_LAYERS
+
+    return TruthSettings(reflectance=reflectance, skin=tuple(spec.skin),
+                         skin_layers={**DEFAULT_SKIN_LAYERS, **dict(spec.skin_layers)})
 
 
 def make_capture(spec, cache, say):
@@ -250,16 +286,19 @@ def run_stages(capture_dir, spec, cache, say, geometry_held=False):
     return directory, seconds
 
 
-def held_bio_run(capture_dir, result_dir, kind, cache, say):
-    """``result_dir``'s polarimetric maps with truth put in (``kind``), fed to the biophysical
-    stage in a copy of the result directory; returns the copy and its bio seconds."""
+def held_bio_run(capture_dir, result_dir, kind, cache, say, held_at_truth=()):
+    """``result_dir``'s polarimetric maps with truth put in (``kind``; ``"stages"`` leaves them
+    as the stages wrote them), fed to the biophysical stage in a copy of the result directory,
+    the skin unknowns named in ``held_at_truth`` given at the truth's face mean; returns the
+    copy and its bio seconds."""
     from polarbssrdf.geometry import texel_atlas, to_mitsuba
     from polarbssrdf.inverse import reconstruct
     from polarbssrdf.inverse.results.directory import read_result, write_result
     from polarbssrdf.io import load_capture
     from polarbssrdf.io.exr import read_exr, write_exr
 
-    directory = Path(cache) / "results" / f"{Path(result_dir).name}_{kind}"
+    name = f"{Path(result_dir).name}_{kind}" + "".join(f"_{n}_truth" for n in held_at_truth)
+    directory = Path(cache) / "results" / name
     if is_done(directory):
         return directory, json.loads((directory / DONE).read_text())["seconds"]
     say(f"  biophysical stage on {directory.name}")
@@ -273,7 +312,7 @@ def held_bio_run(capture_dir, result_dir, kind, cache, say):
     bands = [band.name for band in capture.manifest.bands]
     valid = np.asarray(texel_atlas(to_mitsuba(capture.load_mesh()),
                                    manifest.texture_size).valid, bool)
-    for record in manifest.maps:
+    for record in manifest.maps if kind != "stages" else ():
         path = directory / record["path"]
         channels, metadata = read_exr(path)
         truth = capture.truth_maps(int(record["frame"]))
@@ -286,12 +325,18 @@ def held_bio_run(capture_dir, result_dir, kind, cache, say):
                 channels[f"rho_sss.{band}"] = (t * (1.0 + noise * draw)).astype(np.float32)
             channels["confidence"] = valid.astype(np.float32)
         write_exr(path, channels, metadata=metadata, overwrite=True)
+    truth = capture.truth_maps(0)
+    bio = {n: float(np.mean(np.asarray(truth[n], np.float64)[valid])) for n in held_at_truth}
+    if "gamma" in bio:
+        bio["oxygenation"] = "held"
     started = time.perf_counter()
-    result = reconstruct(capture_dir, directory, stages=("bio",), progress=False)
+    result = reconstruct(capture_dir, directory, stages=("bio",), progress=False,
+                         config={"bio": bio} if bio else None)
     if result.failed:
         raise RuntimeError(f"bio on {directory}: frames failed: {result.failed}")
     seconds = {"bio": time.perf_counter() - started}
-    mark_done(directory, {"from": str(result_dir), "kind": kind, "seconds": seconds})
+    mark_done(directory, {"from": str(result_dir), "kind": kind, "held_at_truth": bio,
+                          "seconds": seconds})
     return directory, seconds
 
 
@@ -393,8 +438,9 @@ def run_row(row, cache, say):
     if row.geometry_held:
         capture_dir = geometry_held_capture(capture_dir, cache, say)
     result_dir, seconds = run_stages(capture_dir, row.capture, cache, say, row.geometry_held)
-    if row.bio_input != "stages":
-        result_dir, bio_seconds = held_bio_run(capture_dir, result_dir, row.bio_input, cache, say)
+    if row.bio_input != "stages" or row.held_at_truth:
+        result_dir, bio_seconds = held_bio_run(capture_dir, result_dir, row.bio_input, cache, say,
+                                               row.held_at_truth)
         seconds = dict(seconds, **{f"bio ({row.bio_input})": bio_seconds["bio"]})
     record = {"row": row.name, "spec": dataclasses.asdict(row), "capture": str(capture_dir),
               "result": str(result_dir), "synth_seconds": synth_seconds, "seconds": seconds,
