@@ -202,14 +202,13 @@ def fresh(directory):
 
 
 def truth_settings(spec):
-    """The demo's truth (its eta and roughness off the fit's start values) on ``spec.skin``."""
+    """The demo's truth (its eta and roughness off the fit's start values) on ``spec.skin``, with
+    ``spec.skin_layers`` in place of synth's default thickness and oxygenation."""
     from polarbssrdf.demo import TRUTH_SETTINGS
-    from polarbssrdf.synth.truth import DEFAULT_REFLECTANCE, TruthSettings
+    from polarbssrdf.synth.truth import DEFAULT_REFLECTANCE, DEFAULT_SKIN_LAYERS, TruthSettings
 
     reflectance = dict(DEFAULT_REFLECTANCE)
     reflectance.update({k: tuple(v) for k, v in TRUTH_SETTINGS["reflectance"].items()})
-    from polarbssrdf.synth.truth import DEFAULT_SKIN_LAYERS
-
     return TruthSettings(reflectance=reflectance, skin=tuple(spec.skin),
                          skin_layers={**DEFAULT_SKIN_LAYERS, **dict(spec.skin_layers)})
 

@@ -4,7 +4,8 @@ model's: their std carries the face thickness and oxygenation the fit holds.
 A face of its own seed whose epidermis is 0.03 mm thicker than the 0.25 mm the fit holds
 (within the 0.05 mm the thickness hyperprior allows), its oxygenation known, its band-integrated
 albedo noise-free, the index the truth's. Held at 0.25 mm, the blocks' inversion moves the face
-means (beta_m the most), and the spread of the blocks alone does not say so.
+means (on this face dermal blood's by more than the range of its linearization), and the spread
+of the blocks alone does not say so.
 """
 
 import numpy as np
