@@ -26,8 +26,9 @@ few views for the maps and their std to be trusted
 (:mod:`polarbssrdf.inverse.evaluation.trust`).
 
 A small script at the end of the page marks images that failed to decode
-(``<body data-images-broken>``) and records the page's height in CSS pixels
-(``data-height``), which the browser tests read.
+(``<body data-images-broken>``) and records how many images the page's grids hold and in
+how many rows they sit (``data-grid-images``, ``data-grid-rows``), which the browser tests
+read.
 """
 
 from __future__ import annotations
@@ -876,7 +877,12 @@ window.addEventListener("load", function () {
   }
   document.body.setAttribute("data-images", String(images.length));
   document.body.setAttribute("data-images-broken", String(broken));
-  document.body.setAttribute("data-height", String(document.documentElement.scrollHeight));
+  var panels = document.querySelectorAll(".grid img"), rows = {};
+  for (var j = 0; j < panels.length; j++) {
+    rows[Math.round(panels[j].getBoundingClientRect().top + window.scrollY)] = true;
+  }
+  document.body.setAttribute("data-grid-images", String(panels.length));
+  document.body.setAttribute("data-grid-rows", String(Object.keys(rows).length));
   if (broken) {
     var warning = document.getElementById("image-warning");
     warning.textContent = broken + " image(s) failed to load";
