@@ -78,7 +78,9 @@ def oxygenation_row(index, atlas, truth, bands, inputs, config):
     truth_gamma = float(np.mean(truth["gamma"][atlas.valid]))
     return {"face": index, "row": list(ROWS[index]), "truth": round(truth_gamma, 4), "estimate": round(estimate.gamma, 4),
             "std": round(estimate.std, 4), "error_over_std": round((estimate.gamma - truth_gamma) / estimate.std, 2),
+            "profile_gamma": round(estimate.profile_gamma, 4), "block_gamma": round(estimate.block_gamma, 4),
             "thickness_std": round(estimate.thickness_std, 4), "jackknife_std": round(estimate.jackknife_std, 4),
+            "weighting_std": round(estimate.weighting_std, 4),
             "evaluations": len(estimate.evaluations), "seconds": round(time.perf_counter() - start, 1)}
 
 

@@ -100,3 +100,32 @@ def test_the_fit_renders_at_the_estimated_oxygenation_and_holds_it_when_asked(mo
     assert len(calls) == 1 and held.noise["face"]["gamma"] == 0.7
     with pytest.raises(ValueError, match="oxygenation"):
         BiophysicalConfig(oxygenation="estimate")
+
+
+def test_block_minima_are_each_blocks_own_and_their_mean_is_not_curvature_weighted():
+    """Blocks whose residuals are parabolas of their own minimum and curvature (blood): each
+    block's minimum comes back, and their texel-weighted mean is the blocks' mean oxygenation,
+    where the summed residual's minimum leans to the high-curvature blocks."""
+    import types
+
+    from polarbssrdf.inverse.biophysical.oxygenation import block_minima, jackknife_std, parabola_vertex
+
+    rng = np.random.default_rng(11)
+    n = 40
+    minima = 0.70 + 0.03 * rng.standard_normal(n)
+    curvature = np.where(minima > 0.70, 10.0, 1.0)  # the more oxygenated blocks hold more blood
+    weight = rng.uniform(0.5, 1.0, n)
+    ok = np.ones(n + 3, bool)
+    ok[[5, 17, 30]] = False  # blocks without data are not in the per-block arrays
+    blocks = {}
+    for gamma in (0.60, 0.65, 0.675, 0.70, 0.725, 0.75, 0.80):
+        blocks[gamma] = (None, ok, weight, weight * curvature * (gamma - minima) ** 2 + 0.1)
+    found, found_weight = block_minima(types.SimpleNamespace(blocks=blocks))
+    assert np.all((minima > 0.60) & (minima < 0.80))  # every block's minimum is bracketed
+    np.testing.assert_allclose(found, minima, atol=1e-12)
+    np.testing.assert_array_equal(found_weight, weight)
+    mean = np.sum(weight * minima) / np.sum(weight)
+    xs = (0.675, 0.70, 0.725)
+    summed, _ = parabola_vertex(xs, [float(np.sum(blocks[g][3])) for g in xs])
+    assert abs(np.sum(weight * found) / np.sum(weight) - mean) < 0.1 * abs(summed - mean)
+    assert np.isfinite(jackknife_std(found, weight)) and np.isnan(jackknife_std(found[:3], weight[:3]))
