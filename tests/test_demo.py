@@ -214,24 +214,26 @@ def _chromium(*arguments, timeout=120):
                           timeout=timeout)
 
 
-def _grid_layout(page_path):
-    """``(images in the report's grids, rows they sit in)`` in a 1200 px wide window (the
-    report's script records them)."""
-    dom = _chromium("--window-size=1200,3000", "--dump-dom", page_path.resolve().as_uri()).stdout
+def _body_attributes(page_path, *window):
+    """``name -> int`` of the ``data-*`` numbers the report's script sets on ``<body>`` once the
+    page has loaded in Chromium (``window``: extra Chromium arguments, e.g. its size)."""
+    dom = _chromium(*window, "--dump-dom", page_path.resolve().as_uri()).stdout
     body = re.search(r"<body([^>]*)>", dom)
     assert body, "Chromium printed no DOM"
-    attributes = dict(re.findall(r'data-(grid-images|grid-rows)="(\d+)"', body.group(1)))
-    assert len(attributes) == 2, "the report's script did not record its grids"
-    return int(attributes["grid-images"]), int(attributes["grid-rows"])
+    return {name: int(value) for name, value in re.findall(r'data-([a-z-]+)="(\d+)"', body.group(1))}
+
+
+def _grid_layout(page_path):
+    """``(images in the report's grids, rows they sit in)`` in a 1200 px wide window."""
+    attributes = _body_attributes(page_path, "--window-size=1200,3000")
+    assert {"grid-images", "grid-rows"} <= set(attributes), "the report's script did not record its grids"
+    return attributes["grid-images"], attributes["grid-rows"]
 
 
 def _images_broken(page_path):
-    dom = _chromium("--dump-dom", page_path.resolve().as_uri()).stdout
-    body = re.search(r"<body([^>]*)>", dom)
-    assert body, "Chromium printed no DOM"
-    attributes = dict(re.findall(r'(data-images(?:-broken)?)="(\d+)"', body.group(1)))
-    assert attributes, "the report's image check did not run in the browser"
-    return int(attributes["data-images"]), int(attributes["data-images-broken"])
+    attributes = _body_attributes(page_path)
+    assert {"images", "images-broken"} <= set(attributes), "the report's image check did not run in the browser"
+    return attributes["images"], attributes["images-broken"]
 
 
 def test_report_renders_in_a_real_browser(demo_dir, tmp_path):

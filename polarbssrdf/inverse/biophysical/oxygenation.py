@@ -201,7 +201,7 @@ def face_oxygenation(rbar, valid, atlas, bands, eta, config, thickness_mm) -> Ox
     first, _, _ = _bracketed_vertex(profile, prior_mean, OXYGENATION_STEP, low, high)
     # the residual is not quite a parabola over +-0.05 (one bracket alone left a face 0.014 low,
     # three of its std): refine at half the step around the first vertex
-    estimate, curvature, xs = _bracketed_vertex(profile, first, OXYGENATION_STEP / 2, low, high)
+    estimate, curvature, _ = _bracketed_vertex(profile, first, OXYGENATION_STEP / 2, low, high)
     # the parabola through the three lowest evaluations: the closest to the minimum of all
     # made, where the residual is most nearly quadratic (noise-free at 0.75, the refined
     # stencil's vertex alone was 0.7533, and a 0.003 error moved a face's dermal blood 12%)
@@ -209,7 +209,7 @@ def face_oxygenation(rbar, valid, atlas, bands, eta, config, thickness_mm) -> Ox
     if np.isfinite(curvature) and profile.values[lowest[1]] == min(profile.values.values()):
         vertex, near_curvature = parabola_vertex(lowest, [profile.values[g] for g in lowest])
         if np.isfinite(vertex):
-            estimate, curvature, xs = float(np.clip(vertex, lowest[0], lowest[2])), near_curvature, lowest
+            estimate, curvature = float(np.clip(vertex, lowest[0], lowest[2])), near_curvature
     minima, weight = block_minima(profile)
     profile_gamma = estimate
     if np.isfinite(curvature):
