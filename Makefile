@@ -12,8 +12,10 @@ $(VENV)/.installed: pyproject.toml tools/setup.sh
 demo: setup
 	$(BIN)/polarbssrdf demo out/demo --overwrite
 
+# one worker per core (at most 4: each holds a Dr.Jit process of ~1.5 GiB); a file's tests
+# stay in one worker so its module fixtures are built once
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile
 
 bench: setup
 	$(BIN)/python bench/run_all.py
