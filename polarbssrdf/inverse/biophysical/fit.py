@@ -19,8 +19,8 @@ texel with their posterior std, by one algorithm:
   chromophores' spreads by expectation-maximization. It stops once the kernels change by
   less than ``kernel_tolerance`` and no noise estimate nor spread moves by more than
   :data:`OUTER_TOLERANCE`;
-* the posterior standard deviation of every map per texel (:mod:`.uncertainty`), with the
-  skin's other unknowns marginalized (:data:`~.config.NUISANCES`): the thickness and
+* the posterior standard deviation of every map per texel (:mod:`.uncertainty`), with what
+  the skin's other unknowns move the maps by (:data:`~.config.NUISANCES`): the thickness and
   oxygenation at the face level (``nuisance_mean``'s std) and within the face
   (``nuisance_std``), and the index's error (the input ``eta_std``).
 
@@ -364,10 +364,11 @@ def _predicted(data, maps):
 
 
 def _uncertainty(data, prior, nuisances, maps, movable, good, held, held_std, config, bounds):
-    """``(std maps, noise figures)``: the posterior std of every fitted chromophore, with the
-    ``nuisances`` (:func:`nuisance_priors`) marginalized (the joint posterior's chromophore
-    block), in the sandwich form with the residuals' correlation between texels as
-    ``config.std_noise`` says; and the held maps' std."""
+    """``(std maps, noise figures)``: the posterior std of every fitted chromophore, with what
+    the ``nuisances`` (:func:`nuisance_priors`) move the maps by: the within-face part as the
+    error of maps fitted with the nuisances held (the fit does not estimate them), the face
+    values' through the joint posterior's face means; in the sandwich form with the
+    residuals' correlation between texels as ``config.std_noise`` says; and the held maps' std."""
     shape = good.shape
     chromophores = prior.names
     spectrum, correlation = None, {}
@@ -388,7 +389,8 @@ def _uncertainty(data, prior, nuisances, maps, movable, good, held, held_std, co
                            mean_variance=list(prior.mean_variance) + [v[1] for v in nuisances.values()],
                            start=list(prior.mu) + [0.0] * len(nuisances), adapt=[False] * (k + len(nuisances)),
                            known_variance=list(prior.known_variance) + [0.0] * len(nuisances))
-    covariance, _, _, mean_covariance = posterior_blocks(data, joint, maps, movable, spectrum)
+    covariance, _, _, mean_covariance = posterior_blocks(data, joint, maps, movable, spectrum,
+                                                         held=len(joint.names) - len(chromophores))
     std = {}
     for k, name in enumerate(chromophores):
         values = np.zeros(good.size)

@@ -284,6 +284,51 @@ def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1
     return covariance * scale[None, :, None] * scale[None, None, :]
 
 
+def held_map_error_covariance(data_precision, held, area_mm2, tau2, correlation_mm, order=1, spectrum=None):
+    """Per-texel covariance ``(n, k, k)`` of the error of the first ``k`` maps' posterior mode when
+    the last ``held`` maps are not estimated but held at their prior mean.
+
+    The fit renders at the face's thickness and oxygenation and the input index; the truth's
+    differ within the face by Matérn fields of spread ``tau2[k:]``. Over the lattice spectrum
+    (:func:`lattice_spectrum`) the error of the fitted maps' mode at frequency ``lambda`` is
+    ``A^-1 (J_c^T e - Q_c c) + A^-1 C_ch dh`` with ``A = C_cc + Q_c``, so its covariance is
+    :func:`posterior_covariance`'s sandwich on ``C_cc`` plus ``A^-1 C_ch Q_h^-1 C_hc A^-1``
+    (``Q = u(lambda) diag(1 / tau^2)``), zone averaged. The joint posterior's chromophore
+    block (the held maps marginalized, Schur complement) is smaller wherever the data could
+    tell the held maps (the band shape tells the oxygenation): it is the uncertainty of an
+    estimate that fits them, not of one that holds them.
+
+    Parameters
+    ----------
+    data_precision : (n, k + held, k + held)
+        The Gauss-Newton normal matrix per texel over the fitted and then the held maps.
+    held : int
+        How many trailing maps are held.
+    area_mm2, tau2, correlation_mm, order, spectrum :
+        As :func:`posterior_covariance`; ``tau2`` has one entry per map, held ones included.
+    """
+
+    C = np.asarray(data_precision, np.float64)
+    tau2 = np.asarray(tau2, np.float64)
+    k = C.shape[-1] - int(held)
+    covariance = posterior_covariance(C[:, :k, :k], area_mm2, tau2[:k], correlation_mm, order, spectrum)
+    if held <= 0:
+        return covariance
+    values, vectors, scale = _whitened_eigen(C[:, :k, :k], tau2[:k])
+    # the held maps' data coupling in the fitted maps' whitened eigenbasis
+    coupling = np.einsum("nik,i,nih,h->nkh", vectors, scale, C[:, :k, k:], np.sqrt(tau2[k:]))
+    outer = np.einsum("nah,nbh->nab", coupling, coupling)
+    unit = _unit_symbol(area_mm2, correlation_mm, order)
+    _, weight = lattice_spectrum()
+    factor = np.zeros_like(outer)
+    for j in range(unit.shape[0]):  # one bin at a time: (n, k, k) memory, not (bins, n, k, k)
+        u = unit[j][:, None]
+        inverse = 1.0 / (values + u)
+        factor += (weight[j] / u[:, :, None]) * inverse[:, :, None] * inverse[:, None, :]
+    extra = np.einsum("nia,nab,njb->nij", vectors, outer * factor, vectors)
+    return covariance + extra * scale[None, :, None] * scale[None, None, :]
+
+
 def _unit_symbol(area_mm2, correlation_mm, order):
     """``u = area (1 + l^2 lambda / area)^order`` (bins, n) over the lattice spectrum's nodes."""
     lam, _ = lattice_spectrum()

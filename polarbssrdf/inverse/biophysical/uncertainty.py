@@ -13,10 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from polarbssrdf.inverse.biophysical.prior import known_mean_covariance, mean_mode_covariance, posterior_covariance
+from polarbssrdf.inverse.biophysical.prior import (
+    held_map_error_covariance,
+    known_mean_covariance,
+    mean_mode_covariance,
+)
 
 
-def posterior_blocks(data, prior, maps, movable, spectrum=None):
+def posterior_blocks(data, prior, maps, movable, spectrum=None, held=0):
     """``(covariance (n, k, k), C, J_z, mean covariance (k, k))`` of the fitted maps
     (``prior.names``) per movable texel.
 
@@ -27,7 +31,12 @@ def posterior_blocks(data, prior, maps, movable, spectrum=None):
     with a noise ``spectrum``) plus what the free face means add
     (:func:`~polarbssrdf.inverse.biophysical.prior.mean_mode_covariance`). Without a spatial
     prior, the data term's own pseudo-inverse per texel (a direction the bands do not see
-    has no finite spread; the caller clips it to the map's range)."""
+    has no finite spread; the caller clips it to the map's range).
+
+    ``held`` > 0: the last ``held`` of ``prior.names`` are maps the fit did not estimate (held
+    at their face values); the covariance is then that of the other maps' error
+    (:func:`~polarbssrdf.inverse.biophysical.prior.held_map_error_covariance`, shape
+    ``(n, k - held, k - held)``), the face means' part still the joint posterior's."""
 
     names = prior.names
     C, J = data.precision(maps, names, movable)
@@ -35,13 +44,14 @@ def posterior_blocks(data, prior, maps, movable, spectrum=None):
     if prior.spatial is None:
         return np.linalg.pinv(C, hermitian=True), C, J, np.zeros((k, k))
     area = prior.spatial.area
-    covariance = posterior_covariance(C, area, prior.tau2, prior.spatial.correlation_mm, prior.spatial.order,
-                                      spectrum=spectrum)
+    fitted = k - int(held)
+    covariance = held_map_error_covariance(C, held, area, prior.tau2, prior.spatial.correlation_mm,
+                                           prior.spatial.order, spectrum=spectrum)
     extra, mean_covariance = mean_mode_covariance(C, area, prior.tau2, np.where(prior.free, prior.mean_variance, 0.0))
     if np.any(prior.known_variance > 0):  # face means estimated before the fit
         extra = extra + known_mean_covariance(C, area, prior.tau2, prior.known_variance)
         mean_covariance = mean_covariance + np.diag(prior.known_variance)
-    return covariance + extra, C, J, mean_covariance
+    return covariance + extra[:, :fitted, :fitted], C, J, mean_covariance
 
 
 def relative_residuals(data, predicted):

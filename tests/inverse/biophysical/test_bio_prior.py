@@ -6,6 +6,7 @@ import pytest
 from polarbssrdf.inverse.biophysical.prior import (
     FourierPreconditioner,
     SpatialPrior,
+    held_map_error_covariance,
     lattice_spectrum,
     mean_mode_covariance,
     noise_spectrum,
@@ -35,6 +36,12 @@ def test_the_prior_alone_has_the_marginal_spread_asked_for(order):
     assert covariance[0, 0] > covariance[centre, centre]
 
 
+def two_map_data_covariance(sigma, correlation):
+    """(2, 2) covariance of two maps' per-texel data errors of std ``sigma`` and ``correlation``."""
+    off = correlation * sigma[0] * sigma[1]
+    return np.array([[sigma[0] ** 2, off], [off, sigma[1] ** 2]])
+
+
 @pytest.mark.parametrize("order", [1, 2])
 def test_posterior_covariance_matches_the_dense_inverse_for_two_correlated_maps(order):
     """Two maps whose data are 80% correlated per texel: the quadrature's (k x k) covariance
@@ -42,10 +49,7 @@ def test_posterior_covariance_matches_the_dense_inverse_for_two_correlated_maps(
     prior = grid_prior(order)
     n = T * T
     tau2 = np.array([prior.tau2(0.01), prior.tau2(0.02)])
-    sigma = np.array([0.004, 0.01])
-    correlation = 0.8
-    data_covariance = np.array([[sigma[0] ** 2, correlation * sigma[0] * sigma[1]],
-                                [correlation * sigma[0] * sigma[1], sigma[1] ** 2]])
+    data_covariance = two_map_data_covariance([0.004, 0.01], 0.8)
     C = np.linalg.inv(data_covariance)
     Q = prior.unit.toarray()
     H_dense = np.kron(np.eye(n), C) + np.kron(Q, np.diag(1.0 / tau2))
@@ -144,6 +148,34 @@ def test_the_sandwich_covariance_matches_the_dense_one_under_correlated_noise():
     white = posterior_covariance(np.full((1, 1, 1), c), np.array([H * H]), [tau2], L, 2)
     assert white[0, 0, 0] == pytest.approx(H_inverse[centre, centre], rel=0.03)
     assert quadrature[0, 0, 0] > 1.2 * white[0, 0, 0]
+
+
+def test_a_held_map_adds_the_error_it_makes_and_more_than_marginalizing_it_does():
+    """One fitted map and one held at its prior mean (the fit renders at the face's oxygenation
+    while the truth's varies within the face), their data 70% correlated per texel. The
+    fitted map's error covariance at the centre texel against the dense
+    ``H_cc^-1 (C_cc + Q_c) H_cc^-1 + H_cc^-1 C_ch Q_h^-1 C_hc H_cc^-1`` over the whole grid;
+    marginalizing the held map (the joint posterior's Schur complement) is smaller: that is
+    the spread of an estimate that fits the held map, not of one that holds it."""
+    prior = grid_prior(2)
+    n = T * T
+    tau2 = np.array([prior.tau2(0.01), prior.tau2(0.02)])
+    C = np.linalg.inv(two_map_data_covariance([0.004, 0.006], 0.7))
+    unit = prior.unit.toarray()
+    H_cc = C[0, 0] * np.eye(n) + unit / tau2[0]
+    H_cc_inverse = np.linalg.inv(H_cc)
+    held_covariance = np.linalg.inv(unit / tau2[1])
+    # white noise: the sandwich H_cc^-1 (C_cc + Q_c) H_cc^-1 is H_cc^-1
+    dense = H_cc_inverse + C[0, 1] ** 2 * H_cc_inverse @ held_covariance @ H_cc_inverse
+    centre = (T // 2) * T + T // 2
+    quadrature = held_map_error_covariance(C[None], 1, np.array([H * H]), tau2, L, 2)[0]
+    assert quadrature.shape == (1, 1)
+    assert quadrature[0, 0] == pytest.approx(dense[centre, centre], rel=0.03)
+    joint = posterior_covariance(C[None], np.array([H * H]), tau2, L, 2)[0]
+    assert quadrature[0, 0] > 1.2 * joint[0, 0]
+    # nothing held: the posterior covariance itself
+    alone = held_map_error_covariance(C[None, :1, :1], 0, np.array([H * H]), tau2[:1], L, 2)
+    np.testing.assert_allclose(alone, posterior_covariance(C[None, :1, :1], np.array([H * H]), tau2[:1], L, 2))
 
 
 def test_population_prior_and_within_face_spread_come_from_table2():
