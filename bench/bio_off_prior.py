@@ -1,13 +1,10 @@
 """Issue 31's faces: the biophysical stage alone on band-integrated faces the fit was not made from.
 
-Three skin rows x two regions, a truth seed per face, the chromophores' bases one
-across-rows spread off Table 2 (:func:`~polarbssrdf.synth.truth.table2_offset_settings`),
-their within-face spreads at 0.5x or 2x synth's default (alternating; 2x capped at 0.45 of
-the base, where a field would be clipped at 0), odd faces with a
-multi-scale field family (3 mm correlation plus sharp-edged freckles on C_m and blood
-patches on C_h_in), epidermal thickness and oxygenation off the fit's values
-(``--thickness``, ``--gamma``: face means, with 0.01 mm and 0.02 within the face), the input
-index the truth's plus a smooth error of the static stage's typical size (0.013, with
+The faces of :mod:`polarbssrdf.synth.unseen_faces` (a truth seed per face, bases off
+Table 2, spreads at 0.5x or 2x synth's default, a second field family with freckles and
+blood patches, the thickness and oxygenation off the fit's values with spreads within the
+face, the input index with the static stage's typical error), face values
+``--thickness`` and ``--gamma``, index error ``--eta-error`` (0.013, with
 ``eta_std`` at that value), 1% white noise (``--noise``). The default fit (``--config`` a JSON
 ``bio`` object changes it, e.g. ``'{"oxygenation": "held"}'``). Prints, per face and map,
 MAE / constant map's MAE and the 2-std coverage, and the face's oxygenation (truth, fit,
@@ -24,45 +21,11 @@ import time
 import numpy as np
 
 import mitsuba as mi
+from polarbssrdf.synth.unseen_faces import UNSEEN_ROWS, unseen_face
 
-ROWS = [(region, skin) for skin in ("II", "III", "IV") for region in ("forehead", "cheek")]
 MAPS = ("C_m", "beta_m", "C_h_out", "C_h_in")
 LIMITS = {"C_m": 0.5, "beta_m": 1.0, "C_h_out": 0.5, "C_h_in": 0.5}
 COVERAGE = (0.90, 0.98)
-FEATURES = [{"map": "C_m", "factor": 1.8, "diameter_mm": 3.0, "edge_mm": 0.3, "count": 25},
-            {"map": "C_h_in", "factor": 1.6, "diameter_mm": 12.0, "edge_mm": 1.0, "count": 4}]
-
-
-def face(index, size, noise, thickness, gamma, eta_error):
-    """``(atlas, truth, bands, inputs)`` of face ``index`` (module docstring)."""
-    from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
-    from polarbssrdf.spectral import default_bands
-    from polarbssrdf.synth.synthesize import subsurface_albedo
-    from polarbssrdf.skin.parameters import TABLE2, table2_spread_across_rows
-    from polarbssrdf.synth.truth import DEFAULT_BIOPHYSICAL_STD, smooth_field, table2_offset_settings, truth_maps
-
-    atlas = texel_atlas(to_mitsuba(face_mesh(1)), size)
-    scale = 0.5 if index % 2 == 0 else 2.0
-    fields = {"correlation_mm": 3.0, "features": FEATURES} if index % 2 else {}
-    layers = {"thickness_mm": (thickness, 0.01, 0.10, 0.40), "gamma": (gamma, 0.02, 0.50, 0.95)}
-    row = TABLE2[ROWS[index]]
-    across = table2_spread_across_rows()
-    # 2x where the base allows it (a field is refused within two of its std of 0)
-    std = {k: min(v * scale, 0.45 * (getattr(row, k) + across[k])) for k, v in DEFAULT_BIOPHYSICAL_STD.items()}
-    settings = table2_offset_settings(ROWS[index], 1.0, spread="rows", skin_layers=layers, biophysical_std=std,
-                                      **fields)
-    rng = np.random.default_rng(3100 + index)
-    truth = truth_maps(atlas, settings, rng)
-    bands = default_bands()
-    albedo = subsurface_albedo(truth, bands)
-    noisy = albedo * (1.0 + noise * rng.standard_normal(albedo.shape))
-    inputs = {f"rho_sss.{b.name}": noisy[i] for i, b in enumerate(bands)}
-    T = atlas.valid.shape[0]
-    texel = float(np.median(atlas.texel_size_mm[atlas.valid]))
-    inputs["eta"] = truth["eta"] + eta_error * smooth_field((T, T), 5.0 / texel, rng)
-    if eta_error > 0:
-        inputs["eta_std"] = np.full((T, T), eta_error)
-    return atlas, truth, bands, inputs
 
 
 def oxygenation_row(index, atlas, truth, bands, inputs, config):
@@ -76,7 +39,7 @@ def oxygenation_row(index, atlas, truth, bands, inputs, config):
     estimate = face_oxygenation(observed * subsurface_exit_fraction(eta)[None], atlas.valid, atlas, bands, eta,
                                 config, config.thickness_mm)
     truth_gamma = float(np.mean(truth["gamma"][atlas.valid]))
-    return {"face": index, "row": list(ROWS[index]), "truth": round(truth_gamma, 4), "estimate": round(estimate.gamma, 4),
+    return {"face": index, "row": list(UNSEEN_ROWS[index]), "truth": round(truth_gamma, 4), "estimate": round(estimate.gamma, 4),
             "std": round(estimate.std, 4), "error_over_std": round((estimate.gamma - truth_gamma) / estimate.std, 2),
             "profile_gamma": round(estimate.profile_gamma, 4), "block_gamma": round(estimate.block_gamma, 4),
             "thickness_std": round(estimate.thickness_std, 4), "jackknife_std": round(estimate.jackknife_std, 4),
@@ -104,7 +67,8 @@ def main():
     config, _ = bio_config(json.loads(args.config))
     rows = []
     for index in (int(v) for v in args.faces.split(",")):
-        atlas, truth, bands, inputs = face(index, args.size, args.noise, args.thickness, args.gamma, args.eta_error)
+        atlas, truth, bands, inputs = unseen_face(index, args.size, args.noise, args.thickness, args.gamma,
+                                                  args.eta_error)
         if args.oxygenation_only:
             print(json.dumps(oxygenation_row(index, atlas, truth, bands, inputs, config)), flush=True)
             continue
@@ -112,7 +76,7 @@ def main():
         result = fit_biophysical(inputs, bands, atlas, config)
         seconds = time.perf_counter() - start
         scores, _ = biophysical_scores(result.channels(), truth, atlas.valid)
-        row = {"face": index, "row": list(ROWS[index]), "seconds": round(seconds, 1)}
+        row = {"face": index, "row": list(UNSEEN_ROWS[index]), "seconds": round(seconds, 1)}
         face_values = result.noise.get("face", {})
         row["gamma"] = {"truth": round(float(np.mean(truth["gamma"][atlas.valid])), 4),
                         "fit": round(face_values.get("gamma", float("nan")), 4),

@@ -1,110 +1,121 @@
-"""The biophysical fit on band-integrated faces off Table 2's means, with the rest of the skin known:
-accuracy against the constant map and calibrated std.
+"""The biophysical fit on faces it was not made from, with their face values known: issue 31's
+figures, map by map.
 
-Each face's biophysical bases sit one across-rows spread above its Table 2 row's means
-(:func:`polarbssrdf.synth.truth.table2_offset_settings`), so a prior centred on Table 2
-cannot pass by knowing the answer; the band integral of the truth (synth's albedo) with 1%
-white noise, 128^2 texels, the epidermal thickness, oxygenation and index known (the truth
-at the fit's values, nothing marginalized), the default config otherwise, three skin types
-x two regions. Thresholds: issue 20's (MAE at most 0.5 of the constant map's for C_m and
-C_h_out, 0.6 for C_h_in, 1.5 for beta_m; 2-std coverage in [0.90, 0.995], [0.85, 0.995]
-for beta_m), and the noise the fit estimates for itself within 0.2% of the 1% it was given.
-Measured on 2026-12-03 (the band integral): C_m 0.12-0.16, C_h_out 0.12-0.14, beta_m
-0.77-0.98, C_h_in 0.44-0.57 except forehead IV's 0.64, coverage C_m 0.986-0.988, beta_m
-0.889-0.913, C_h_out 0.989-0.990, C_h_in 0.957-0.967. Forehead IV's C_h_in is an expected
-failure: the band integral's Cramér-Rao bound of C_h_in is 1.9-3.3x the band-effective
-model's the threshold was set on (docs/biophysical.md). bench/bio_off_prior.py measures
-faces where the rest of the skin is not known.
+The six faces of :mod:`polarbssrdf.synth.unseen_faces` (issue 31 item 4): a truth seed per
+face, the bases one across-rows spread off Table 2, the within-face spreads at 0.5x synth's
+default on the foreheads and 2x on the cheeks, the cheeks with a second field family
+(3 mm fields, sharp-edged freckles and blood patches), the thickness and oxygenation
+varying within the face by 0.01 mm and 0.02, the input index off the truth's by a smooth
+error of 0.013 (``eta_std`` given), 1% white noise on the band integral, 128^2 texels.
+The fit is told the face values (thickness 0.25 mm, oxygenation 0.75, held) and nothing
+else. With the face values unknown no face meets the figures either
+(``bench/bio_off_prior.py``, bench/RESULTS.md).
+
+Thresholds are issue 31's: MAE at most 0.5 of the constant map's for C_m, C_h_out and
+C_h_in, at most the constant map's for beta_m; 2-std coverage in [0.90, 0.98]. Where a face
+misses one (measured on 2026-12-04 at 34099ce), the case is a strict expected failure that
+names the measured figure, so a change that reaches it shows as an unexpected pass. What
+limits them is in docs/biophysical.md: the oxygenation and thickness within the face and
+the index error, which six bands cannot tell from the chromophores, and beta_m's spread,
+which the bands hardly see, so that its coverage is the ratio of the truth's spread to the
+prior's.
 """
 
 import numpy as np
 import pytest
 
 import mitsuba as mi
-from polarbssrdf.spectral import default_bands
 
 PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
-LIMITS = {"C_m": 0.5, "beta_m": 1.5, "C_h_out": 0.5, "C_h_in": 0.6}
-COVERAGE = {"C_m": (0.90, 0.995), "beta_m": (0.85, 0.995), "C_h_out": (0.90, 0.995), "C_h_in": (0.90, 0.995)}
+LIMITS = {"C_m": 0.5, "beta_m": 1.0, "C_h_out": 0.5, "C_h_in": 0.5}
+COVERAGE = (0.90, 0.98)
+FACES = range(6)
+
+MISSED_MAE = {
+    (0, "C_m"): 0.89, (0, "beta_m"): 4.15, (0, "C_h_out"): 0.59, (0, "C_h_in"): 3.78,
+    (1, "C_h_in"): 0.59,
+    (2, "C_m"): 0.98, (2, "beta_m"): 2.32, (2, "C_h_out"): 0.51, (2, "C_h_in"): 3.71,
+    (3, "beta_m"): 1.35, (3, "C_h_in"): 0.92,
+    (4, "C_m"): 1.06, (4, "beta_m"): 2.30, (4, "C_h_out"): 0.69, (4, "C_h_in"): 4.67,
+    (5, "C_h_in"): 0.81,
+}
+"""MAE / constant map's MAE where it is over the figure (2026-12-04)."""
+
+MISSED_COVERAGE = {
+    (0, "beta_m"): 0.798, (0, "C_h_in"): 0.886,
+    (1, "beta_m"): 0.727,
+    (2, "beta_m"): 0.996, (2, "C_h_in"): 0.983,
+    (3, "beta_m"): 0.542, (3, "C_h_in"): 0.837,
+    (5, "beta_m"): 0.727,
+}
+"""2-std coverage where it is outside [0.90, 0.98] (2026-12-04)."""
 
 
-ROWS = [(region, skin) for skin in ("II", "III", "IV") for region in ("forehead", "cheek")]
-KNOWN_LAYERS = {"thickness_mm": (0.25, 0.0, 0.10, 0.40), "gamma": (0.75, 0.0, 0.50, 0.95)}
-"""Epidermal thickness and oxygenation constant at the fit's values: this file checks the
-chromophores' fit and std where the rest of the skin is known (bench/bio_off_prior.py
-measures faces where it is not)."""
+def _cases(missed, what):
+    cases = []
+    for face in FACES:
+        for name in PARAMETERS:
+            marks = ()
+            if (face, name) in missed:
+                marks = pytest.mark.xfail(strict=True, reason=f"{what} {missed[face, name]} (2026-12-04)")
+            cases.append(pytest.param(face, name, marks=marks, id=f"face{face}-{name}"))
+    return cases
 
 
-def _known_skin():
+def _known_face_values():
     from polarbssrdf.inverse.biophysical.config import BiophysicalConfig
 
-    # the oxygenation held at the truth's value, not estimated: this file's skin is known
-    return BiophysicalConfig(nuisance_std={"thickness_mm": 0.0, "gamma": 0.0, "eta": 0.0}, oxygenation="held")
-
-
-KNOWN_SKIN = _known_skin()
-
-
-def off_table_face(row, noise):
-    """``(atlas, truth, bands, inputs)``: a 128^2 face one across-rows spread above ``row``'s
-    means, its truth albedo with ``noise`` relative white noise, and the truth's eta."""
-    from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
-    from polarbssrdf.synth.synthesize import subsurface_albedo
-    from polarbssrdf.synth.truth import table2_offset_settings, truth_maps
-
-    mi.set_variant("llvm_ad_mono_polarized")
-    atlas = texel_atlas(to_mitsuba(face_mesh(1)), 128)
-    truth = truth_maps(atlas, table2_offset_settings(row, 1.0, spread="rows", skin_layers=KNOWN_LAYERS),
-                       np.random.default_rng(1))
-    bands = default_bands()
-    albedo = subsurface_albedo(truth, bands)
-    noisy = albedo * (1.0 + noise * np.random.default_rng(7).standard_normal(albedo.shape))
-    inputs = {f"rho_sss.{b.name}": noisy[i] for i, b in enumerate(bands)}
-    inputs["eta"] = truth["eta"]
-    return atlas, truth, bands, inputs
+    # the face values told, the spreads within the face left to the std (the defaults)
+    return BiophysicalConfig(oxygenation="held", thickness_mm=0.25, gamma=0.75,
+                             nuisance_mean={"thickness_mm": [0.25, 0.0], "gamma": [0.75, 0.0]})
 
 
 _FITS = {}
 
 
-def fitted(row):
-    """``(result, scores)`` of the face of ``row`` (fitted once, shared by the tests)."""
+def fitted(face):
+    """``(result, scores)`` of face ``face`` (fitted once, shared by the tests)."""
     from polarbssrdf.inverse.biophysical.fit import fit_biophysical
     from polarbssrdf.inverse.evaluation.scores import biophysical_scores
+    from polarbssrdf.synth.unseen_faces import unseen_face
 
-    if row not in _FITS:
-        atlas, truth, bands, inputs = off_table_face(row, 0.01)
-        result = fit_biophysical(inputs, bands, atlas, KNOWN_SKIN)
+    if face not in _FITS:
+        mi.set_variant("llvm_ad_mono_polarized")
+        atlas, truth, bands, inputs = unseen_face(face, 128, 0.01, thickness_mm=0.25, gamma=0.75)
+        result = fit_biophysical(inputs, bands, atlas, _known_face_values())
         scores, _ = biophysical_scores(result.channels(), truth, atlas.valid)
         for name in PARAMETERS:
             score = scores[name]
-            print(row, name, f"MAE {100 * score['mae_of_range']:.1f}% (constant "
-                  f"{100 * score['constant_mae_of_range']:.1f}%), within 2 std {score['coverage']:.3f}")
-        _FITS[row] = result, scores
-    return _FITS[row]
+            print(face, name, f"MAE {score['mae_of_range'] / score['constant_mae_of_range']:.3f} of the "
+                  f"constant map's, within 2 std {score['coverage']:.3f}")
+        _FITS[face] = result, scores
+    return _FITS[face]
 
 
-EXPECTED_C_H_IN_FAILURES = {("forehead", "IV"): "C_h_in 0.64 of the constant map's (2026-12-03): the band "
-                                                "integral's bound is 1.9-3.3x the band-effective one's"}
+@pytest.mark.parametrize("face,name", _cases(MISSED_MAE, "MAE / constant map's"))
+def test_unseen_faces_beat_the_constant_map(face, name):
+    _, scores = fitted(face)
+    score = scores[name]
+    assert score["mae_of_range"] <= LIMITS[name] * score["constant_mae_of_range"]
 
 
-@pytest.mark.parametrize("row", [pytest.param(row, marks=pytest.mark.xfail(strict=True, reason=EXPECTED_C_H_IN_FAILURES[row]))
-                                 if row in EXPECTED_C_H_IN_FAILURES else row for row in ROWS])
-def test_off_table_faces_recover_dermal_blood_better_than_a_constant(row):
-    _, scores = fitted(row)
-    score = scores["C_h_in"]
-    assert score["mae_of_range"] <= LIMITS["C_h_in"] * score["constant_mae_of_range"]
+@pytest.mark.parametrize("face,name", _cases(MISSED_COVERAGE, "2-std coverage"))
+def test_unseen_faces_have_calibrated_std(face, name):
+    _, scores = fitted(face)
+    low, high = COVERAGE
+    assert low <= scores[name]["coverage"] <= high
 
 
-@pytest.mark.parametrize("row", ROWS)
-def test_off_table_faces_beat_the_constant_map_with_calibrated_std(row):
-    result, scores = fitted(row)
-    for name in PARAMETERS:
-        score = scores[name]
-        if name != "C_h_in":  # its MAE: the test above
-            assert score["mae_of_range"] <= LIMITS[name] * score["constant_mae_of_range"], name
-        low, high = COVERAGE[name]
-        assert low <= score["coverage"] <= high, name
-    # the noise the fit estimated for itself is the 1% it was given
+MISSED_NOISE = {1: "0.0077-0.0125", 3: "0.0075-0.0126", 5: "0.0081-0.0125"}
+"""The bands' noise the fit estimated where one is more than 0.002 off the 1% given (2026-12-04):
+on the cheeks (2x spreads, freckles) the reddest band's is low and the others' high."""
+
+
+@pytest.mark.parametrize("face", [pytest.param(face, marks=pytest.mark.xfail(
+    strict=True, reason=f"noise estimates {MISSED_NOISE[face]} (2026-12-04)")) if face in MISSED_NOISE else face
+    for face in FACES])
+def test_the_noise_the_fit_estimates_is_the_one_it_was_given(face):
+    """Each band's relative noise within 0.002 of the 1% the albedo was given."""
+    result, _ = fitted(face)
     sigma = np.array(list(result.noise["relative_sigma"].values()))
     assert np.all(np.abs(sigma - 0.01) < 0.002), sigma
