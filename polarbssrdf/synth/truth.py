@@ -35,7 +35,7 @@ DEFAULT_BIOPHYSICAL_STD = {"C_m": 0.004, "beta_m": 0.01, "C_h_out": 0.01, "C_h_i
 DEFAULT_SKIN_LAYERS = {
     # the epidermis of the Donner & Jensen 2006 two-layer model; high-frequency ultrasound of
     # 118 faces gives 0.17-0.22 mm per site with a between-subject SD of 0.02-0.03 mm
-    # (Ji et al., BMC Medical Imaging 22:113, 2022, Table 2); OCT and histology give thinner
+    # (Meng et al., BMC Medical Imaging 22:113, 2022, Table 2); OCT and histology give thinner
     # epidermis (0.03-0.07 mm), so the thickness is a model parameter, not a measurement
     "thickness_mm": (0.25, 0.025, 0.10, 0.40),
     # the oxygen fraction of cutaneous blood: 0.75 in Donner et al. 2008 and Jacques' 2013
