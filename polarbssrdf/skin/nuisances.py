@@ -20,9 +20,9 @@ DEFAULT_NUISANCE_STD = {"thickness_mm": 0.01, "gamma": 0.02, "eta": 0.015}
 """Within-face spread of the nuisance maps. Thickness (mm): a stated guess at the low end of
 high-frequency ultrasound's spread between facial sites (site means 0.17-0.22 mm over eight
 sites, about 0.018 mm as a standard deviation; Meng et al., BMC Medical Imaging 22:113,
-2022). synth's faces vary by 0.025 mm, and on the demo the fit told 0.025 mm and 0.03
-covers C_h_in at 0.91 where these defaults cover it at 0.78 (bench/RESULTS.md, 2026-12-04):
-set ``nuisance_std`` where a capture's skin is known to vary more. Oxygenation: a stated
+2022). synth's faces vary by 0.025 mm, and on the demo's first frame the fit told 0.025 mm
+and 0.03 covers C_h_in at 0.91 where these defaults cover it at 0.78 (bench/RESULTS.md,
+2026-12-04): set ``nuisance_std`` where a capture's skin is known to vary more. Oxygenation: a stated
 guess (regions at rest differ by a few percent). Index: the static stage's typical error
 (demo: MAE 0.013)."""
 
