@@ -75,8 +75,10 @@ def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_
     row = TABLE2[row_key]
     across = table2_spread_across_rows()
     # 2x where the base allows it (a field is refused within two of its std of 0)
-    std = {k: min(v * scale, 0.45 * (getattr(row, k) + across[k])) for k, v in DEFAULT_BIOPHYSICAL_STD.items()}
-    settings = table2_offset_settings(row_key, 1.0, spread="rows", skin_layers=layers, biophysical_std=std, **fields)
+    std = {k: min(v * scale, 0.45 * (getattr(row, k) + across[k]))
+           for k, v in DEFAULT_BIOPHYSICAL_STD.items()}
+    settings = table2_offset_settings(row_key, 1.0, spread="rows", skin_layers=layers,
+                                      biophysical_std=std, **fields)
     rng = np.random.default_rng(SEED_BASE + index)
     truth = truth_maps(atlas, settings, rng)
     bands = default_bands()
