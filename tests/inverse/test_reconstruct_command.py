@@ -63,8 +63,9 @@ def expected_channels(capture_dir):
     from polarbssrdf.io import load_capture
 
     bands = load_capture(capture_dir, check_images=False).manifest.band_names
-    return {"eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement",
-            *(f"rho_sss.{band}" for band in bands), "normal.x", "normal.y", "normal.z",
+    maps = ["eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement",
+            *(f"rho_sss.{band}" for band in bands)]
+    return {*maps, *(f"{name}_std" for name in maps), "normal.x", "normal.y", "normal.z",
             "confidence", "specular_peak_angle"}
 
 

@@ -19,7 +19,11 @@ so) and every truth channel used is finite:
 * ``by_specular_peak_angle`` (results that have the ``specular_peak_angle``
   channel): the MAE of ``alpha_s`` per class of that angle
   (:func:`peak_angle_breakdown`), since the glossy lobes are measured only
-  where a view saw them near their peak.
+  where a view saw them near their peak;
+* every map with a posterior std channel ``<map>_std``
+  (:mod:`polarbssrdf.inverse.polarimetric.posterior`): its
+  :func:`uncertainty_scores` (the 2-std ``coverage`` of the error) beside the
+  map's error.
 
 If the run held cameras out (``result.json`` ``settings.holdout``), their
 views are re-rendered with the recovered maps and compared with the capture
@@ -150,6 +154,12 @@ def evaluate_maps(maps, truth, atlas, band_names, units=None):
     finite = [v["relative_error"] for v in per_band.values() if v["relative_error"] is not None]
     constant = [v["constant_relative_error"] for v in per_band.values()
                 if v["constant_relative_error"] is not None]
+    for name, entry in [*((name, scores[name]) for name in (*ABSOLUTE_MAPS, *RELATIVE_MAPS)),
+                        *((f"rho_sss.{band}", per_band[band]) for band in bands)]:
+        std = maps.get(f"{name}_std")
+        if std is not None:
+            error = np.asarray(maps[name], np.float64)[scored] - truth[name][scored]
+            entry.update(uncertainty_scores(error, np.asarray(std, np.float64)[scored]))
     scores["rho_sss"] = {"bands": per_band,
                          "mean_relative_error": float(np.mean(finite)) if finite else None,
                          "mean_constant_relative_error":

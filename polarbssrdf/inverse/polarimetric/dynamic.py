@@ -87,6 +87,14 @@ def static_maps(outdir):
     return read_stage_maps(outdir, "static", static_frame_of(outdir))
 
 
+def static_held_maps(outdir):
+    """The static maps held at the face's level (``held_at_face_mean`` of their file)."""
+    frame = static_frame_of(outdir)
+    record = read_result(outdir).record("static", frame)
+    _, metadata = read_exr(Path(outdir) / record["path"])
+    return dict((metadata or {}).get("held_at_face_mean", {}))
+
+
 def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(), *,
               variant="llvm_ad_mono_polarized", threads=None, progress=False):
     """Fit one frame and write ``dynamic/maps_f####.exr`` (not registered); returns its record.
@@ -127,11 +135,16 @@ def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(),
                                   weights=weights, optimized=OPTIMIZED,
                                   description=f"frame {frame}", params=params)
     for name in HELD:  # held: exactly the static values (the fill leaves them alone)
-        result.maps[name] = np.asarray(static[name], np.float32)
+        for channel in (name, f"{name}_std"):
+            if channel in static:
+                result.maps[channel] = np.asarray(static[channel], np.float32)
+        result.held.pop(name, None)
+    result.held.update({name: record for name, record in static_held_maps(outdir).items()
+                        if name in HELD})
     path = outdir / stage_map_path(STAGE, frame)
     metadata = {"stage": STAGE, "frame": int(frame), "config": config.to_json(),
                 "weights": weights, "texel_views": len(store), "history": result.history,
-                "confidence": result.confidence,
+                "confidence": result.confidence, "held_at_face_mean": result.held,
                 "seconds": round(time.perf_counter() - started, 3)}
     write_exr(path, result.maps, metadata=metadata, overwrite=True)
     dr.flush_malloc_cache()

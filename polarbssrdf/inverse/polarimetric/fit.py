@@ -56,6 +56,12 @@ from tqdm import tqdm
 from polarbssrdf.geometry.height import normals_from_height
 from polarbssrdf.inverse.polarimetric.config import OPTIMIZED
 from polarbssrdf.inverse.polarimetric.model import half_vector_cosine
+from polarbssrdf.inverse.polarimetric.face_level import (
+    FALLBACK_MAPS,
+    held_std_channels,
+    hold_at_face_level,
+    unresolved_maps,
+)
 from polarbssrdf.inverse.polarimetric.optimize import (
     MapParameters,
     active_weights,
@@ -65,6 +71,7 @@ from polarbssrdf.inverse.polarimetric.optimize import (
     texel_view_terms,
 )
 from polarbssrdf.inverse.polarimetric.patches import PatchCache, patch_order, texture_patches
+from polarbssrdf.inverse.polarimetric.posterior import map_posterior_std
 from polarbssrdf.inverse.results.fill import fill_from_neighbours
 from polarbssrdf.io.atomic import atomic_write_bytes
 
@@ -90,6 +97,8 @@ class StageResult:
     history: list
     path: Path | None = None
     confidence: dict | None = None
+    held: dict = dataclasses.field(default_factory=dict)
+    """Maps held at the face's level (:func:`polarbssrdf.inverse.polarimetric.face_level.hold_unresolved_maps`)."""
 
 
 def initial_parameters(config, texture_size, n_bands, start=None):
@@ -439,9 +448,13 @@ def fill_from_confident(values, confident, sigma=2.0):
     return fill_from_neighbours(values, confident, sigma).astype(np.float32)
 
 
-def final_maps(params, atlas, confidence, band_names, specular_peak_angle=None):
+def final_maps(params, atlas, confidence, band_names, specular_peak_angle=None, std=None):
     """The result channels: maps filled where confidence is 0, normals, confidence and
-    (when given) the specular peak angle."""
+    (when given) the specular peak angle and the posterior std channels ``<map>_std``.
+
+    A filled texel's std is its confident neighbours' combined with the map's spread over
+    the confident texels (the fill guesses a value the views did not measure).
+    """
 
     confident = (confidence > 0) & atlas.valid
     maps = params.to_numpy()
@@ -450,6 +463,13 @@ def final_maps(params, atlas, confidence, band_names, specular_peak_angle=None):
         channels[name] = fill_from_confident(maps[name], confident)
     for band, name in enumerate(band_names):
         channels[f"rho_sss.{name}"] = fill_from_confident(params.rho_sss[band], confident)
+    for name, values in (std or {}).items():
+        measured = confident & np.isfinite(values)
+        if not measured.any():
+            continue
+        spread = float(np.std(channels[name[:-len("_std")]][confident]))
+        filled = fill_from_confident(np.where(measured, values, 0.0), measured)
+        channels[name] = np.where(measured, filled, np.hypot(filled, spread)).astype(np.float32)
     normal = normals_from_height(channels["displacement"] * atlas.valid, atlas)
     for axis, component in zip("xyz", np.moveaxis(normal, -1, 0)):
         channels[f"normal.{axis}"] = component.astype(np.float32)
@@ -478,6 +498,15 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
     confidence = screening_confidence(statistics, params.rho_sss, atlas.valid, config)
     summary = confidence_summary(confidence, atlas.valid)
     check_some_confident(summary, statistics, atlas.valid, config)
-    return StageResult(final_maps(params, atlas, confidence, store.bands,
-                                  statistics.specular_peak_angle), history,
-                       confidence=summary)
+    weights, noise = active_weights(config, weights), epoch_noise(config, history)
+    std = map_posterior_std(params, cache, patches, config, weights, noise, store.bands)
+    maps = final_maps(params, atlas, confidence, store.bands, statistics.specular_peak_angle, std)
+    confident = (confidence > 0) & atlas.valid
+    held = unresolved_maps(maps, confident,
+                           [name for name in params.optimized if name in FALLBACK_MAPS])
+    if held:
+        hold_at_face_level(params, cache, patches, config, weights, noise, held, confident)
+        maps = final_maps(params, atlas, confidence, store.bands, statistics.specular_peak_angle,
+                          std)
+        held_std_channels(maps, held)
+    return StageResult(maps, history, confidence=summary, held=held)

@@ -65,6 +65,21 @@ def data_losses(predicted, observed, glossy_I_s, weight, mean_sss, noise, count)
 def data_loss_terms(predicted, observed, glossy_I_s, weight, mean_sss, noise):
     """Per texel-view contributions to the data terms of one band (arrays; see :func:`data_losses`).
 
+    The sums of squares of :func:`data_residuals`' residuals, per term.
+    """
+    return {name: sum(dr.square(residual) for residual in residuals)
+            for name, residuals in data_residuals(predicted, observed, glossy_I_s, weight,
+                                                  mean_sss, noise).items()}
+
+
+def data_residuals(predicted, observed, glossy_I_s, weight, mean_sss, noise):
+    """Per texel-view residuals of one band, in units of their noise: ``{term: [Float, ...]}``.
+
+    A term's contribution to the loss is the sum of the squares of its
+    residuals (:func:`data_loss_terms`); the Gauss-Newton posterior of the
+    maps (:mod:`polarbssrdf.inverse.polarimetric.posterior`) differentiates
+    the residuals themselves.
+
     Parameters
     ----------
     predicted, observed : tuple of 4 Float
@@ -77,7 +92,7 @@ def data_loss_terms(predicted, observed, glossy_I_s, weight, mean_sss, noise):
         therefore depends on the glossy parameters too; it is not detached,
         so the gradients are those of the loss as written.
     weight : Float
-        Per texel-view weight (visibility and selection; 0 drops a view).
+        Per texel-view weight, 0 or 1 (visibility and selection; 0 drops a view).
     mean_sss : float or Float
         The patch's mean observed ``I_sss`` (image scale).
     noise : float or Float
@@ -88,14 +103,14 @@ def data_loss_terms(predicted, observed, glossy_I_s, weight, mean_sss, noise):
     inv_sigma = 1.0 / (noise * mean_sss)
     xi_hat = s_hat - glossy_I_s
     xi = s - glossy_I_s
-    losses = {
-        "sss": weight * dr.square((sss_hat - sss) * inv_sigma),
-        "s": weight * dr.square((s_hat - s) * inv_sigma),
+    residuals = {
+        "sss": [weight * ((sss_hat - sss) * inv_sigma)],
+        "s": [weight * ((s_hat - s) * inv_sigma)],
     }
-    # W_phi of eq. 31: the subsurface image relative to its mean
-    phi_weight = weight * dr.maximum(sss, 0.0) / mean_sss
-    losses["phi"] = phi_weight * (dr.square((zeta_hat - zeta) * inv_sigma)
-                                  + dr.square((xi_hat - xi) * inv_sigma))
+    # W_phi of eq. 31 (the subsurface image relative to its mean) weighs the squares
+    phi_scale = dr.sqrt(weight * dr.maximum(sss, 0.0) / mean_sss)
+    residuals["phi"] = [phi_scale * ((zeta_hat - zeta) * inv_sigma),
+                        phi_scale * ((xi_hat - xi) * inv_sigma)]
     dominated = (sss > dr.abs(s)) & (sss > 0.0)
     # where the subsurface light does not dominate, psi is undefined (I_sss <= 0 gives inf):
     # select before squaring, so neither the value nor the gradient meets 0 x inf
@@ -105,6 +120,6 @@ def data_loss_terms(predicted, observed, glossy_I_s, weight, mean_sss, noise):
                / dr.maximum(sss_hat, 1e-6 * mean_sss))
     dominated &= psi < 1.0
     # psi is a ratio of images: its noise is about sigma / I_sss
-    residual = (psi_hat - psi) * safe_sss * inv_sigma
-    losses["psi"] = dr.select(dominated, weight * dr.square(residual), 0.0)
-    return losses
+    residuals["psi"] = [dr.select(dominated, weight * ((psi_hat - psi) * safe_sss * inv_sigma),
+                                  0.0)]
+    return residuals

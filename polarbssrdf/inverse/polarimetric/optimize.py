@@ -277,11 +277,32 @@ def predicted_patch(params, prepared, config, differentiable=False):
     and ``leaves`` as from :func:`patch_leaves`.
     """
     window, leaves = patch_leaves(params, prepared, differentiable)
-    normal = per_view_normals(leaves["dH_du"], leaves["dH_dv"], prepared)
+    stokes, normal, specular_views = predict_from_leaves(params, prepared, config, leaves)
+    return stokes, window, normal, specular_views, leaves
+
+
+def predict_from_leaves(params, prepared, config, leaves, offsets=None):
+    """The predicted Stokes components of a patch from :func:`patch_leaves`' leaves.
+
+    ``offsets``: ``{name: Float}`` added per texel-view to the physical
+    value of a glossy parameter or to a slope (``dH_du``, ``dH_dv``) before
+    the model reads it: the tangents of the posterior's forward derivatives
+    (:mod:`polarbssrdf.inverse.polarimetric.posterior`).
+
+    Returns ``(stokes, normal, specular_views)`` (see :func:`predicted_patch`).
+    """
+    offsets = offsets or {}
+
+    def value(name):
+        return leaves[name] + offsets[name] if name in offsets else leaves[name]
+
+    normal = per_view_normals(value("dH_du"), value("dH_dv"), prepared)
     per_view = {name: leaves[name] for name in OPTIMIZED if name != "displacement"}
     scale = params.amplitude_scale(per_view["eta"])
     for name in GLOSSY_ALBEDOS:
         per_view[name] = per_view[name] * scale
+    per_view = {name: per_view[name] + offsets[name] if name in offsets else per_view[name]
+                for name in per_view}
     held = dict(per_view)
     specular_views = None
     if config.separate_lobes:
@@ -294,7 +315,7 @@ def predicted_patch(params, prepared, config, differentiable=False):
     stokes = predict_stokes(prepared.geometry, normal, per_view["eta"], held["rho_s"],
                             held["alpha_s"], held["rho_ss"], held["alpha_ss"],
                             coaxial=config.coaxial)
-    return stokes, window, normal, specular_views, leaves
+    return stokes, normal, specular_views
 
 
 def usable_views(prepared, normal, config):
