@@ -255,6 +255,14 @@ def headline_figures(evaluation) -> dict:
         figures["static rho_sss relative error (mean of bands)"] = round(
             maps["rho_sss"]["mean_relative_error"], 4)
         figures["static normal error, degrees"] = round(maps["normal"]["mean_deg"], 3)
+        for name in ("eta", "alpha_s", "displacement"):
+            if maps[name].get("coverage") is not None:
+                figures[f"static {name} fraction within 2 std"] = round(maps[name]["coverage"], 3)
+        bands = [entry.get("coverage") for entry in maps["rho_sss"].get("bands", {}).values()]
+        bands = [c for c in bands if c is not None and c == c]
+        if bands:
+            figures["static rho_sss fraction within 2 std (mean of bands)"] = round(
+                sum(bands) / len(bands), 3)
         holdout = static.get("holdout") or {}
         if holdout.get("mean"):
             figures["held-out I_s RMSE / mean I_sss"] = round(
@@ -276,6 +284,21 @@ def headline_figures(evaluation) -> dict:
                 figures[f"bio {parameter} fraction within 2 std (mean over frames)"] = round(
                     sum(coverages) / len(coverages), 3)
     return figures
+
+
+def static_notes_of(result_dir) -> dict:
+    """``{map: note}`` of the static map file of a result
+    (:func:`polarbssrdf.inverse.evaluation.trust.static_map_notes`): the maps held at one
+    face value."""
+    # deferred with the evaluation (see run_demo)
+    from polarbssrdf.inverse.evaluation.trust import static_map_notes
+    from polarbssrdf.inverse.results.directory import read_result
+    from polarbssrdf.io.exr import read_exr
+
+    for record in read_result(result_dir).maps:
+        if record["stage"] == "static":
+            return static_map_notes(read_exr(Path(result_dir) / record["path"])[1])
+    return {}
 
 
 def bio_notes_of(result_dir) -> dict:
@@ -305,7 +328,8 @@ def closing_lines(metrics) -> list[str]:
     map's and marked, as the report marks it, when it is no better; each 2-std coverage
     beside its ideal; then every map the report marks, and the biophysical maps that are
     held or prior-dominated (:func:`polarbssrdf.inverse.evaluation.trust.bio_map_notes`,
-    ``metrics["bio_notes"]``)."""
+    ``metrics["bio_notes"]``), and the static maps held at one face value
+    (``metrics["static_notes"]``)."""
     # deferred: the scores' module imports the renderer (seconds); the parser does not need it
     from polarbssrdf.inverse.evaluation.scores import (
         COVERAGE_IDEAL,
@@ -344,6 +368,10 @@ def closing_lines(metrics) -> list[str]:
                for name, frames in by_map.items()]
     if marked:
         lines.append(f"  {LOSES} (marked in the report): {', '.join(marked)}")
+    held = metrics.get("static_notes") or {}
+    if held:
+        lines.append("  static maps the views do not resolve, held at one face value (said "
+                     f"beside them in the report): {', '.join(held)}")
     said = unmeasured_summary(metrics.get("bio_notes") or {})
     if said:
         lines.append(f"  bio maps the bands do not measure (said beside them in the "
@@ -419,6 +447,7 @@ def run_demo(outdir, settings=DemoSettings(), *, resume=False, overwrite=False, 
     metrics = {"schema": METRICS_SCHEMA, "schema_version": SCHEMA_VERSION,
                "settings": asdict(settings), "holdout": [settings.holdout],
                "headline": headline_figures(evaluation),
+               "static_notes": static_notes_of(result_dir),
                "bio_notes": bio_notes_of(result_dir),
                "seconds": {**{k: round(v, 2) for k, v in seconds.items()},
                            "stages": stage_seconds, "reused": reused},

@@ -374,24 +374,26 @@ def rerender_png(camera, band, observed, rendered, mask, unit=RADIANCE_UNIT) -> 
     return _png(figure)
 
 
-def calibration_png(curves, ks=COVERAGE_K, notes=None) -> bytes:
+def calibration_png(curves, ks=COVERAGE_K, notes=None, markers=None) -> bytes:
     """:func:`calibration_figure` as PNG bytes."""
-    return _png(calibration_figure(curves, ks, notes))
+    return _png(calibration_figure(curves, ks, notes, markers))
 
 
-def calibration_figure(curves, ks=COVERAGE_K, notes=None):
-    """Observed coverage of the posterior std against k, one line per chromophore, beside
+def calibration_figure(curves, ks=COVERAGE_K, notes=None, markers=None):
+    """Observed coverage of the posterior std against k, one line per map, beside
     the coverage a calibrated Gaussian std gives, ``erf(k / sqrt 2)`` (dashed).
 
     ``curves``: ``{name: (fractions, texels)}`` of :func:`coverage_fractions`;
-    ``notes``: ``{name: text}`` added to a chromophore's legend entry (e.g. "held at
-    its face mean"). The horizontal axis is k itself, to a little beyond the largest k
+    ``notes``: ``{name: text}`` added to a map's legend entry (e.g. "held at
+    its face mean"); ``markers``: ``{name: matplotlib marker}`` (default a circle), e.g.
+    one per stage. The horizontal axis is k itself, to a little beyond the largest k
     (3), so the points at 2-3 std, where a calibrated std covers 95-99.7%, are spread
     out instead of crowded against 1. Points above the dashed curve: the std is too
     large (errors smaller than claimed); below: too small (overconfident).
     """
     ks = np.asarray(ks, float)
-    figure = _figure(5.8, 4.4 + 0.16 * (len(curves) + 1))
+    columns = 1 if len(curves) <= 8 else 2
+    figure = _figure(5.8 if columns == 1 else 7.6, 4.4 + 0.16 * (len(curves) // columns + 2))
     axes = figure.add_subplot(1, 1, 1)
     fine = np.linspace(0.0, ks[-1] + 0.25, 200)
     axes.plot(fine, expected_coverage(fine), color="0.35", lw=1.2, ls="--",
@@ -399,10 +401,12 @@ def calibration_figure(curves, ks=COVERAGE_K, notes=None):
     ideal = float(expected_coverage((2.0,))[0])
     axes.axvline(2.0, color="0.6", lw=0.8, ls=":")
     axes.text(2.03, 0.02, f"k = 2: ideal {ideal:.3f}", fontsize=7, color="0.3")
-    colours = matplotlib.colormaps["tab10"]
+    colours = matplotlib.colormaps["tab10" if len(curves) <= 10 else "tab20"]
     for index, (name, (fractions, texels)) in enumerate(curves.items()):
         extra = f", {notes[name]}" if notes and notes.get(name) else ""
-        axes.plot(ks, fractions, "o-", ms=3.5, lw=1.4, color=colours(index % 10),
+        marker = (markers or {}).get(name, "o")
+        axes.plot(ks, fractions, marker=marker, ls="-", ms=3.5, lw=1.4,
+                  color=colours(index % colours.N),
                   label=f"{name} ({texels:,} texels{extra})")
     axes.set_xlim(0.0, ks[-1] + 0.25)
     axes.set_ylim(0.0, 1.04)
@@ -412,5 +416,6 @@ def calibration_figure(curves, ks=COVERAGE_K, notes=None):
     axes.set_title("posterior calibration", fontsize=10)
     axes.grid(alpha=0.3)
     # below the axes, never over the curves (their low ends sit in the lower right)
-    axes.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
+    axes.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False,
+                ncol=columns)
     return figure

@@ -62,6 +62,7 @@ from polarbssrdf.inverse.evaluation.scores import (
 from polarbssrdf.inverse.evaluation.trust import (
     bio_map_notes,
     notes_by_map,
+    static_map_notes,
     untrusted_text,
     views_check,
 )
@@ -347,7 +348,9 @@ def static_maps_section(data) -> str:
     truth = data.truth.get(frame)
     mask = _static_mask(data, maps)
     losers = losing_maps(data.evaluation)
+    notes = static_map_notes(map_metadata(data, "static", frame))
     parts, singles = [], []
+    has_std = False
     names = list(STATIC_MAPS) + [f"rho_sss.{band}" for band in data.bands]
     for name in names:
         if name not in maps:
@@ -355,12 +358,19 @@ def static_maps_section(data) -> str:
         reference = truth.get(name) if truth is not None else None
         relative = name in RELATIVE_ERROR_MAPS or name.startswith("rho_sss")
         unit = data.units.get(name.split(".")[0], "1")
-        image = _image(map_comparison_png(name, maps[name], reference, mask, unit, relative),
+        std = maps.get(name + STD_SUFFIX)
+        has_std |= std is not None
+        note = notes.get(name)
+        image = _image(map_comparison_png(name, maps[name], reference, mask, unit, relative,
+                                          std=std,
+                                          note=f"{name}: {note['label']}" if note else None),
                        f"{name} map")
+        if note:
+            image = f'<p class="held">{html.escape(name)}: {html.escape(note["text"])}.</p>' + image
         if name in losers.get("static", {}):
             image = (f'<p class="loses">{html.escape(name)}: {losers["static"][name]}</p>'
                      + image)
-        (parts if reference is not None else singles).append(image)
+        (parts if reference is not None or std is not None else singles).append(image)
     singles.append(_image(map_comparison_png("confidence", maps["confidence"], None,
                                              np.asarray(data.atlas.valid, bool)),
                           "confidence map"))
@@ -375,8 +385,14 @@ def static_maps_section(data) -> str:
     if truth is not None:
         intro = ("Each map: recovered, truth (one colour scale) and the error; albedo errors "
                  "are relative to the truth, in percent.")
+        if has_std:
+            intro += (" Then the posterior standard deviation (same unit as the map) and the "
+                      "error divided by it (a calibrated std leaves 95% of the texels within "
+                      "+-2).")
     else:
         intro = f"Recovered maps only ({html.escape(data.no_truth_reason or 'no truth')})."
+        if has_std:
+            intro += " Beside each map: its posterior standard deviation (same unit)."
     return ("<p>Texels with confidence 0 (too few views, or a fit far worse than the median) "
             f"and texels off the mesh are grey. {intro}" + note + "</p>"
             + "\n".join(parts) + _grid(singles))
@@ -491,25 +507,80 @@ def coverage_at_two_std(curves) -> dict:
     return {name: float(fractions[at_two]) for name, (fractions, _) in curves.items()}
 
 
+STAGE_MARKERS = {"static": "o", "dynamic": "s", "bio": "^"}
+"""The calibration plot's marker of each stage's curves."""
+
+
+def _pooled(pooled, key, recovered, truth, std, mask):
+    """Add one map's coverage fractions to ``pooled[key] = (fractions * texels, texels)``."""
+    fractions, texels = coverage_fractions(recovered, truth, std, mask)
+    if texels:
+        total, count = pooled.get(key, (np.zeros(len(COVERAGE_K)), 0))
+        pooled[key] = (total + fractions * texels, count + texels)
+
+
+def _polarimetric_calibration(data, stage, frames):
+    """``{map: (fractions, texels)}`` of ``stage``'s (static or dynamic) maps over ``frames``
+    pooled, every ``rho_sss.<band>`` into one ``rho_sss`` curve; only maps with ``_std``."""
+    pooled = {}
+    for frame in frames:
+        if frame not in data.truth:
+            continue
+        maps, truth = data.maps[stage][frame], data.truth[frame]
+        mask = _static_mask(data, maps)
+        for name in list(STATIC_MAPS) + [f"rho_sss.{band}" for band in data.bands]:
+            std = maps.get(name + STD_SUFFIX)
+            if std is None or name not in maps or name not in truth:
+                continue
+            _pooled(pooled, name.split(".")[0], maps[name], truth[name], std, mask)
+    return {name: (total / count, count) for name, (total, count) in pooled.items()}
+
+
+def stage_calibration_curves(data):
+    """``{"<map> (<stage>)": (fractions, texels)}`` for every stage's maps with a posterior
+    std and truth: the static frame, the dynamic frames pooled, the bio frames pooled
+    (:func:`calibration_curves`); with ``{label: stage}`` for the plot's markers."""
+    curves, stages = {}, {}
+    static = data.maps.get("static", {})
+    frame = _static_frame(data)
+    parts = [("static", _polarimetric_calibration(data, "static", [frame] if frame in static else [])),
+             ("dynamic", _polarimetric_calibration(data, "dynamic", sorted(data.maps.get("dynamic", {})))),
+             ("bio", calibration_curves(data, sorted(data.maps.get("bio", {}))))]
+    for stage, found in parts:
+        for name, curve in found.items():
+            label = f"{name} ({stage})"
+            curves[label], stages[label] = curve, stage
+    return curves, stages
+
+
 def calibration_html(data, frames) -> str:
-    """The calibration plot of the posterior std (with truth and ``*_std`` channels), or "";
-    the 2-std coverage of every chromophore beside its ideal, and in the legend what
-    :func:`bio_notes` says of a map (held, prior-dominated) and in which frames."""
-    curves = calibration_curves(data, frames)
+    """The calibration plot of the posterior std (with truth and ``*_std`` channels) of every
+    stage's maps, or ""; the 2-std coverage of each beside its ideal, and in the legend what
+    :func:`static_map_notes` and :func:`bio_notes` say of a map (held, prior-dominated)."""
+    curves, stages = stage_calibration_curves(data)
     if not curves:
         return ""
-    notes = notes_by_map({frame: bio_notes(data, frame) for frame in frames})
+    notes = {f"{name} (bio)": text for name, text in
+             notes_by_map({frame: bio_notes(data, frame) for frame in frames}).items()}
+    static = _static_frame(data)
+    for name, note in static_map_notes(map_metadata(data, "static", static)).items():
+        notes[f"{name} (static)"] = note["label"]
     coverage = ", ".join(f"{name} {value:.3f}"
                          for name, value in coverage_at_two_std(curves).items())
-    return ("<h3>Posterior calibration</h3><p>For each chromophore, the fraction of surface "
-            "texels (on the mesh, not flagged; all frames with truth pooled) whose error "
-            "|recovered - truth| is below k times the posterior standard deviation, against "
-            "the fraction erf(k / sqrt 2) a Gaussian posterior of that width would give "
+    return ("<p>For each map with a posterior standard deviation, the fraction of its texels "
+            "(static and dynamic maps: confident texels on the mesh; biophysical maps: texels "
+            "not flagged; frames with truth pooled, the subsurface albedo's bands pooled) whose "
+            "error |recovered - truth| is below k times the posterior standard deviation, "
+            "against the fraction erf(k / sqrt 2) a Gaussian posterior of that width would give "
             f"(dashed), k = {COVERAGE_K[0]:g} to {COVERAGE_K[-1]:g}. Above the dashed curve "
-            "the std is too large, below it too small (overconfident).</p>"
+            "the std is too large, below it too small (overconfident). Markers: circles static, "
+            "squares dynamic, triangles biophysical.</p>"
             f'<p class="coverage">Within 2 std: {html.escape(coverage)} '
             f"(ideal {COVERAGE_IDEAL:.3f}).</p>"
-            + _image(calibration_png(curves, notes=notes), "posterior calibration"))
+            + _image(calibration_png(curves, notes=notes,
+                                     markers={label: STAGE_MARKERS[stage]
+                                              for label, stage in stages.items()}),
+                     "posterior calibration"))
 
 
 def biophysical_section(data) -> str:
@@ -541,7 +612,6 @@ def biophysical_section(data) -> str:
                 image = f'<p class="loses">{html.escape(name)}: {why}</p>' + image
             (figures if reference is not None or std is not None else singles).append(image)
         parts.append("\n".join(figures) + _grid(singles))
-    parts.append(calibration_html(data, frames))
     summary = data.bio_summary
     truth_summary = None
     if summary is not None:
@@ -931,6 +1001,8 @@ def build_report_html(data, *, variant=DEFAULT_VARIANT, title=None,
         add("dynamic", "Dynamic frames", lambda: dynamic_section(data))
     if "bio" in data.maps:
         add("bio", "Biophysical maps", lambda: biophysical_section(data))
+    add("calibration", "Posterior calibration",
+        lambda: calibration_html(data, sorted(data.maps.get("bio", {}))))
     if "static" in data.maps:
         add("rerender", "Re-rendered view", lambda: rerender_section(data, variant))
     add("losses", "Loss curves", lambda: losses_section(data))

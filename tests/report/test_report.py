@@ -190,7 +190,11 @@ def test_calibration_and_std_panels_from_a_hand_made_map_file(tmp_path):
         assert by_name[name][5] is not None  # std beside the map
     assert by_name["albedo_gain"][4] == "1" and by_name["albedo_gain"][5] is None
     section = page.biophysical_section(data)
-    assert "Posterior calibration" in section and "posterior standard deviation" in section
+    assert "posterior standard deviation" in section
+    calibration = page.calibration_html(data, [0])
+    assert "posterior calibration" in calibration
+    for name in page.BIO_PARAMETERS:
+        assert f"{name} (bio)" in calibration
 
     plain, _ = _bio_maps(rng, shape, with_std=False)
     path = write_exr(tmp_path / "plain.exr", plain)
@@ -198,7 +202,81 @@ def test_calibration_and_std_panels_from_a_hand_made_map_file(tmp_path):
     assert page.calibration_curves(data, [0]) == {} and page.calibration_html(data, [0]) == ""
     panels = page._bio_panels(data, 0, data.maps["bio"][0], truth)
     assert all(p[5] is None for p in panels) and "albedo_gain" not in {p[0] for p in panels}
-    assert "Posterior calibration" not in page.biophysical_section(data)
+    assert "posterior standard deviation" not in page.biophysical_section(data)
+
+
+def _static_maps(rng, shape, bands, too_small=()):
+    """A static map file with a posterior std per map whose error is drawn from it (twice
+    the std for the maps in ``too_small``), and its truth."""
+    names = list(("eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement")) + [
+        f"rho_sss.{band}" for band in bands]
+    truth, maps = {}, {"confidence": np.ones(shape, np.float32)}
+    for name in names:
+        truth[name] = rng.uniform(0.3, 0.6, shape).astype(np.float32)
+        std = rng.uniform(0.002, 0.01, shape)
+        scale = 2.0 if name in too_small else 1.0
+        maps[name] = (truth[name] + scale * std * rng.normal(size=shape)).astype(np.float32)
+        maps[f"{name}_std"] = std.astype(np.float32)
+    maps["confidence"][:3] = 0.0
+    return maps, truth
+
+
+def test_static_std_beside_the_error_and_every_stage_in_one_calibration_plot(monkeypatch):
+    """Issue 33 item 3: each static map's posterior std and z-score beside its error, a map
+    held at its face level says so beside its figure, and one calibration plot pools the
+    static, dynamic and biophysical maps (the albedo's bands into one curve)."""
+    from polarbssrdf.report import page
+    from polarbssrdf.report.calibration import COVERAGE_K
+
+    rng = np.random.default_rng(11)
+    shape = (30, 30)
+    valid = np.ones(shape, bool)
+    valid[:, -2:] = False
+    static, truth = _static_maps(rng, shape, ("G", "R"), too_small=("displacement",))
+    dynamic, dynamic_truth = _static_maps(rng, shape, ("G", "R"))
+    bio, bio_truth = _bio_maps(rng, shape)
+    data = _fake_data(maps={"static": {0: static}, "dynamic": {1: dynamic}, "bio": {0: bio, 1: bio}},
+                      truth={0: {**truth, **bio_truth}, 1: {**dynamic_truth, **bio_truth}},
+                      valid=valid)
+    data.capture.manifest.band_names = ("G", "R")
+    data.metadata["static"] = {0: {"held_at_face_mean": {
+        "rho_ss": {"mean": 0.45, "level": 0.46, "spread": 0.05, "noise_std": 0.1}}}}
+
+    drawn = {}
+
+    def record(name, recovered, truth, mask, unit="1", relative=False, std=None, note=None):
+        drawn[name] = (std is not None, note)
+        return b"png"
+
+    monkeypatch.setattr(page, "map_comparison_png", record)
+    monkeypatch.setattr(page, "_image", lambda png, alt: f"<img alt='{alt}'>")
+    section = page.static_maps_section(data)
+    for name in ("eta", "alpha_s", "alpha_ss", "rho_s", "rho_ss", "displacement", "rho_sss.G"):
+        assert drawn[name][0], name
+    assert drawn["rho_ss"][1] == "rho_ss: held at its face level"
+    assert drawn["eta"][1] is None
+    assert "held at one face value 0.46" in section and "error divided by it" in section
+
+    curves, stages = page.stage_calibration_curves(data)
+    at_two = COVERAGE_K.index(2.0)
+    for stage, frames in (("static", 1), ("dynamic", 1)):
+        for name in ("eta", "alpha_s", "rho_ss", "rho_sss"):
+            fractions, texels = curves[f"{name} ({stage})"]
+            bands = 2 if name == "rho_sss" else 1
+            assert texels == bands * frames * 27 * 28, (name, stage)  # confident, on the mesh
+            assert abs(fractions[at_two] - 0.954) < 0.03, (name, stage)
+    assert curves["displacement (static)"][0][at_two] < 0.8  # its std is half its error's
+    assert curves["C_m (bio)"][1] == 2 * 30 * 23  # both bio frames pooled, flagged left out
+    assert {stages[label] for label in curves} == {"static", "dynamic", "bio"}
+    plotted = {}
+    monkeypatch.setattr(page, "calibration_png",
+                        lambda curves, notes=None, markers=None: plotted.update(
+                            notes=notes, markers=markers) or b"png")
+    assert "rho_sss (static) 0.9" in page.calibration_html(data, [0, 1])
+    assert plotted["notes"]["rho_ss (static)"] == "held at its face level"
+    assert plotted["markers"]["eta (static)"] != plotted["markers"]["eta (dynamic)"]
+    assert plotted["markers"]["C_m (bio)"] not in (plotted["markers"]["eta (static)"],
+                                                    plotted["markers"]["eta (dynamic)"])
 
 
 def test_biophysical_residual_is_masked_like_the_chromophores(monkeypatch):
@@ -356,7 +434,7 @@ def test_a_held_or_prior_dominated_map_says_so_beside_its_maps_and_curve(tmp_pat
     monkeypatch.setattr(page, "map_comparison_png",
                         lambda name, *a, note=None, **k: drawn.setdefault(name, note) and b"")
     monkeypatch.setattr(page, "calibration_png",
-                        lambda curves, notes=None: legends.update(notes or {}) or b"")
+                        lambda curves, notes=None, markers=None: legends.update(notes or {}) or b"")
     monkeypatch.setattr(page, "_image", lambda png, alt: f"<img alt='{alt}'>")
     data = _fake_data(maps={"bio": {0: maps}}, truth={0: truth},
                       valid=np.ones(maps["C_m"].shape, bool))
@@ -365,8 +443,9 @@ def test_a_held_or_prior_dominated_map_says_so_beside_its_maps_and_curve(tmp_pat
     assert '<p class="held">beta_m, frame 0: held at its face mean 0.05' in section
     assert '<p class="held">C_h_in, frame 0: prior-dominated' in section
     assert drawn["beta_m"] == "beta_m: held at its face mean" and drawn["C_m"] is None
-    assert legends == {"beta_m": "held at its face mean (frame 0)",
-                       "C_h_in": "prior-dominated (frame 0)"}
+    page.calibration_html(data, [0])
+    assert legends == {"beta_m (bio)": "held at its face mean (frame 0)",
+                       "C_h_in (bio)": "prior-dominated (frame 0)"}
 
 
 def test_the_terminal_names_the_maps_the_bands_do_not_measure(tmp_path):
@@ -452,6 +531,10 @@ def test_the_two_std_coverage_is_printed_beside_its_ideal():
     assert "<td>0.620</td>" in page and "<td>0.954</td>" in page
 
 
+def by_key_of(lines):
+    return {line.split(":")[0].strip(): line for line in lines}
+
+
 def test_the_demo_closing_lines_mark_maps_worse_than_a_constant():
     from polarbssrdf.demo import closing_lines
 
@@ -468,8 +551,13 @@ def test_the_demo_closing_lines_mark_maps_worse_than_a_constant():
                        "bio": {"0": {"maps": {"beta_m": loses, "C_m": wins}},
                                "1": {"maps": {"beta_m": loses, "C_m": wins}}}},
         "bio_notes": {"0": {"beta_m": {"kind": "prior_dominated", "label": "prior-dominated",
-                                       "text": "..."}}}}
+                                       "text": "..."}}},
+        "static_notes": {"rho_ss": {"kind": "held_at_face_mean", "label": "held at its face level",
+                                    "text": "..."}}}
+    metrics["headline"]["static eta fraction within 2 std"] = 0.93
     lines = closing_lines(metrics)
+    assert by_key_of(lines)["static eta fraction within 2 std"].endswith("0.93 (ideal 0.954)")
+    assert any("held at one face value" in line and line.endswith(": rho_ss") for line in lines)
     by_key = {line.split(":")[0].strip(): line for line in lines}
     assert by_key["static eta MAE"] == "  static eta MAE: 0.02 (best constant map: 0.03)"
     assert by_key["static alpha_s MAE"].endswith(

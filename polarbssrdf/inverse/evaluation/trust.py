@@ -154,6 +154,29 @@ def bio_map_notes(channels, metadata) -> dict:
     return notes
 
 
+def static_map_notes(metadata) -> dict:
+    """The polarimetric maps of one static or dynamic map file held at one face value.
+
+    ``metadata``: the file's metadata (:func:`polarbssrdf.io.exr.read_exr`), whose
+    ``held_at_face_mean`` the static stage writes
+    (:func:`polarbssrdf.inverse.polarimetric.face_level.unresolved_maps`: the map's spread
+    over the confident texels was no larger than its posterior error) and the dynamic stage
+    copies for the static maps it keeps. Returns ``{name: {"kind", "label", "text"}}`` as
+    :func:`bio_map_notes` does."""
+    notes = {}
+    for name, entry in dict((metadata or {}).get("held_at_face_mean") or {}).items():
+        entry = entry if isinstance(entry, dict) else {}
+        level = entry.get("level", entry.get("mean"))
+        at = f" {level:.4g}" if isinstance(level, (int, float)) else ""
+        spread, error = entry.get("spread"), entry.get("noise_std")
+        why = (f" (its fitted spread {spread:.3g} was within its posterior error {error:.3g})"
+               if isinstance(spread, (int, float)) and isinstance(error, (int, float)) else "")
+        notes[name] = {"kind": "held_at_face_mean", "label": "held at its face level",
+                       "text": f"held at one face value{at}: the views do not resolve its "
+                               f"variation{why}; its std is that spread"}
+    return notes
+
+
 NOTE_WORDS = {"held_at_face_mean": "held at its face mean", "prior_dominated": "prior-dominated",
               "held_at_first_frame": "held at the first frame's map"}
 """A few words per kind of :func:`bio_map_notes`."""
