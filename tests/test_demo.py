@@ -260,7 +260,7 @@ def test_report_renders_in_a_real_browser(demo_dir, tmp_path):
 
 POSITIONS = """<script>window.addEventListener("load", function () {
   var found = {}, wanted = {untrusted: "p.warning#untrusted", nav: "nav",
-    coverage: "p.coverage", plusminus: "p.plusminus", calibration: "#bio ~ h3",
+    coverage: "p.coverage", plusminus: "p.plusminus", calibration: "h2#calibration",
     coverage_table: "table"};
   for (var key in wanted) {
     var all = document.querySelectorAll(wanted[key]), hit = null;
@@ -295,7 +295,8 @@ def test_the_uncertainty_pieces_render_in_a_real_browser(demo_dir, tmp_path):
     for key in ("untrusted", "nav", "coverage", "plusminus", "calibration", "coverage_table"):
         assert key in positions and positions[key][1] > 0, (key, positions)
     assert positions["untrusted"][0] < positions["nav"][0]  # at the top, above every section
-    assert positions["calibration"][0] < positions["coverage"][0] < positions["plusminus"][0]
+    # the biophysical maps' region table, then one calibration section for every stage
+    assert positions["plusminus"][0] < positions["calibration"][0] < positions["coverage"][0]
     text = re.sub(r"<[^>]+>", " ", dom)
     assert "cannot be trusted" in text and "fewer than the 4 the glossy lobes need" in text
     assert "(ideal 0.954)" in text and "mean \u00b1 spatial std" in text

@@ -24,18 +24,24 @@ class SurfaceMesh:
         Texture coordinates in the OBJ convention (``v`` up), in [0, 1].
     name : str
         A label for messages.
+    normals : (V, 3) float64, optional
+        Unit shading normals; None (the default): the area-weighted normals of the
+        faces (:meth:`vertex_normals`).
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     uvs: np.ndarray
     name: str = "mesh"
+    normals: np.ndarray | None = None
 
     def __post_init__(self):
         validate_mesh(self)
 
     def vertex_normals(self):
-        """Area-weighted unit vertex normals."""
+        """Unit vertex normals: :attr:`normals` if the mesh has them, else area-weighted."""
+        if self.normals is not None:
+            return np.asarray(self.normals, np.float64)
         corners = self.vertices[self.faces]
         face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         normals = np.zeros_like(self.vertices)
@@ -110,20 +116,29 @@ def load_mesh(path, scale_to_mm=1.0):
                        np.asarray(uv, dtype=np.float64), name=path.name)
 
 
-def subdivide(mesh, levels=1):
+def subdivide(mesh, levels=1, keep_shading=False):
     """Loop-free midpoint subdivision: each triangle into four, ``levels`` times.
 
     Positions and UVs are interpolated linearly, so the surface and its
     parameterization are unchanged; only the texel-to-vertex density grows.
+    With ``keep_shading`` the shading normals are interpolated too (and
+    normalized), so the finer mesh shades like the coarse one (whose flat
+    triangles would otherwise show as facets); without it the finer mesh's
+    normals are its own area-weighted ones.
     """
     import trimesh.remesh
 
     vertices, faces, uvs = mesh.vertices, mesh.faces, mesh.uvs
+    normals = mesh.vertex_normals() if keep_shading else None
     for _ in range(levels):
+        carried = {"uv": uvs} if normals is None else {"uv": uvs, "normal": normals}
         vertices, faces, attributes = trimesh.remesh.subdivide(
-            vertices, faces, vertex_attributes={"uv": uvs})
+            vertices, faces, vertex_attributes=carried)
         uvs = attributes["uv"]
-    return SurfaceMesh(vertices, faces, uvs, name=mesh.name)
+        if normals is not None:
+            normals = attributes["normal"]
+            normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    return SurfaceMesh(vertices, faces, uvs, name=mesh.name, normals=normals)
 
 
 def uv_sphere(radius_mm=50.0, rings=48, segments=96, name="uv_sphere"):

@@ -84,3 +84,16 @@ def check_string(value, name: str, choices=None) -> str:
     if choices is not None and value not in choices:
         raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
     return value
+
+
+def check_object_keys(value, where: str, noun: str, known, required=()) -> None:
+    """``ValueError`` naming ``where`` unless ``value`` is a dict (a JSON object, called
+    ``noun`` in the message) whose keys are among ``known`` and include ``required``."""
+    if not isinstance(value, dict):
+        raise ValueError(f"{where}: {noun} must be an object with keys {sorted(known)}")
+    unknown = sorted(set(value) - set(known))
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {sorted(known)}")
+    for key in required:
+        if key not in value:
+            raise ValueError(f"{where}: missing key {key!r}")

@@ -419,3 +419,34 @@ def calibration_figure(curves, ks=COVERAGE_K, notes=None, markers=None):
     axes.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False,
                 ncol=columns)
     return figure
+
+
+def transfer_png(curve) -> bytes:
+    """:func:`transfer_figure` as PNG bytes."""
+    return _png(transfer_figure(curve))
+
+
+def transfer_figure(curve):
+    """The displacement's transfer curve: gain and correlation against the truth per octave
+    band of spatial scale (``evaluate``'s ``displacement.transfer``, finest first), the
+    band drawn at the geometric mean of its Gaussian scales (the finest at half a texel)."""
+    figure = _figure(5.8, 3.6)
+    axes = figure.add_subplot(1, 1, 1)
+    centres = [np.sqrt(low * high) if low > 0 else 0.5 * high
+               for low, high in (band["sigma_mm"] for band in curve)]
+    axes.axhline(1.0, color="0.6", lw=0.8, ls=":")
+    axes.plot(centres, [band["gain"] for band in curve], "o-", color="C0",
+              label="gain (recovered / true amplitude)")
+    axes.plot(centres, [band["correlation"] for band in curve], "s--", color="C1",
+              label="correlation with the truth")
+    axes.set_xscale("log")
+    axes.set_xticks(centres)
+    axes.set_xticklabels([f"{c:.2g}" for c in centres])
+    axes.set_xlabel("spatial scale (Gaussian sigma of the band, mm)")
+    axes.set_ylabel("unitless")
+    axes.set_ylim(min(0.0, *(band["gain"] for band in curve)) - 0.05,
+                  max(1.2, *(band["gain"] for band in curve)) + 0.05)
+    axes.set_title("displacement: which scales of the relief are recovered", fontsize=10)
+    axes.grid(alpha=0.3)
+    axes.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), frameon=False, ncol=2)
+    return figure

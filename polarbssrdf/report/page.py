@@ -81,6 +81,7 @@ from polarbssrdf.report.figures import (
     normals_png,
     region_series_png,
     rerender_png,
+    transfer_png,
     unit_label,
 )
 from polarbssrdf.variants import DEFAULT_VARIANT
@@ -361,16 +362,20 @@ def static_maps_section(data) -> str:
         std = maps.get(name + STD_SUFFIX)
         has_std |= std is not None
         note = notes.get(name)
+        # without truth a map and its std are two one-panel figures in the grid
         image = _image(map_comparison_png(name, maps[name], reference, mask, unit, relative,
-                                          std=std,
+                                          std=std if reference is not None else None,
                                           note=f"{name}: {note['label']}" if note else None),
                        f"{name} map")
+        if reference is None and std is not None:
+            image += _image(map_comparison_png(f"{name} posterior std", std, None, mask, unit),
+                            f"{name} posterior std")
         if note:
             image = f'<p class="held">{html.escape(name)}: {html.escape(note["text"])}.</p>' + image
         if name in losers.get("static", {}):
             image = (f'<p class="loses">{html.escape(name)}: {losers["static"][name]}</p>'
                      + image)
-        (parts if reference is not None or std is not None else singles).append(image)
+        (parts if reference is not None else singles).append(image)
     singles.append(_image(map_comparison_png("confidence", maps["confidence"], None,
                                              np.asarray(data.atlas.valid, bool)),
                           "confidence map"))
@@ -408,9 +413,18 @@ def normals_section(data) -> str:
         valid = np.asarray(data.atlas.valid, bool)
         height = np.nan_to_num(np.asarray(data.truth[frame]["displacement"], np.float64)) * valid
         truth = normals_from_height(height, data.atlas)
+    transfer = (((data.evaluation or {}).get("static") or {}).get("maps") or {}).get(
+        "displacement", {}).get("transfer")
+    curve = ""
+    if transfer:
+        curve = ("<p>The recovered displacement against the truth's per octave of spatial "
+                 "scale: the gain is the regression slope of the recovered band on the true "
+                 "one (1: the relief at that scale is carried; 0: flattened), the correlation "
+                 "how much of the band is the truth's rather than noise.</p>"
+                 + _image(transfer_png(transfer), "displacement transfer curve"))
     return ("<p>Object-space normals of the base mesh displaced by the recovered H "
             "(eq. 25).</p>" + _image(normals_png(recovered, truth, _static_mask(data, maps)),
-                                     "normal maps"))
+                                     "normal maps") + curve)
 
 
 def dynamic_section(data) -> str:

@@ -12,8 +12,10 @@ of eq. 47's reflectance the same way). The result is rendered by
 ``pexitance``, which the camera sees directly (glossy lobes reflect it only
 with ``interreflection``); the camera records I0/I45/I90/I135 (or, with
 ``raw``, the noisy 12-bit mosaic of a polarization sensor). The geometry is
-the base mesh displaced by the displacement map; the capture stores the
-base mesh, as a multi-view-stereo reconstruction would give it.
+the base mesh displaced by the displacement map, subdivided until its edges are
+no longer than a texel so that it carries the map's detail
+(:mod:`polarbssrdf.geometry.displaced`); the capture stores the base mesh, as a
+multi-view-stereo reconstruction would give it.
 
 Raw exposure: one fixed exposure per camera for the whole capture, set the way
 a stage is metered with a white target before the shoot, from the rig alone
@@ -31,12 +33,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from polarbssrdf.geometry import displace, face_mesh, texel_atlas, to_mitsuba, uv_sphere
+from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba, uv_sphere
+from polarbssrdf.geometry.displaced import displaced_mesh, subdivided_for_texels
 from polarbssrdf.geometry.face import face_region_masks
 from polarbssrdf.render.lightstage import ring_light_stage
 from polarbssrdf.render.subsurface import (
@@ -48,7 +52,7 @@ from polarbssrdf.render.subsurface import (
 )
 from polarbssrdf.skin.quadrature import SPECTRAL_METHODS, spectral_quadrature
 from polarbssrdf.render.view import render_analyser_images, set_exitance, view_scene
-from polarbssrdf.synth.truth import TruthSettings, frame_maps, truth_maps
+from polarbssrdf.synth.truth import TruthSettings, frame_maps, relief_notes, truth_maps
 
 OBJECTS = ("sphere", "face")
 ANALYSER = ("I0", "I45", "I90", "I135")
@@ -201,6 +205,9 @@ class PreparedCapture:
     truth_settings: TruthSettings
     flush_region: np.ndarray | None
     quadrature: object  # SpectralQuadrature of the bands
+    base_atlas: object  # TexelAtlas of base_mesh at the texture size
+    render_base: object  # base_mesh subdivided to carry the displacement map (subdivided_for_texels)
+    notes: list  # what the texture cannot hold of the truth's relief (relief_notes)
 
     def maps(self, frame):
         return frame_maps(self.static_maps, frame, self.settings.frames, self.truth_settings,
@@ -220,7 +227,8 @@ def prepare_capture(settings, bands, truth_settings=None):
                              height=settings.resolution, fov_x_deg=22.0)
     atlas = texel_atlas(to_mitsuba(base), settings.texture)
     rng = np.random.default_rng(settings.seed)
-    static = truth_maps(atlas, truth_settings, rng)
+    landmarks = face_mesh(0) if settings.object == "face" else None
+    static = truth_maps(atlas, truth_settings, rng, landmarks)
     flush = None
     if settings.object == "face":
         masks = face_region_masks(settings.texture)
@@ -229,7 +237,8 @@ def prepare_capture(settings, bands, truth_settings=None):
     quadrature = spectral_quadrature(bands, settings.spectral)
     kernels = layer_profile_kernels(quadrature, truth_settings.skin_parameters())
     return PreparedCapture(settings, list(bands), stage, base, static, kernels, truth_settings,
-                           flush, quadrature)
+                           flush, quadrature, atlas, subdivided_for_texels(base, atlas),
+                           relief_notes(atlas, truth_settings, landmarks))
 
 
 @dataclasses.dataclass
@@ -245,9 +254,12 @@ class FrameState:
 
 
 def prepare_frame(prepared, frame):
-    """Maps of ``frame``, the displaced mesh, its texel atlas and the per-band albedo."""
+    """Maps of ``frame``, the displaced mesh (fine enough to carry the displacement map,
+    :func:`~polarbssrdf.geometry.displaced.displaced_mesh`), its texel atlas and the
+    per-band albedo."""
     maps = prepared.maps(frame)
-    mesh = displace(prepared.base_mesh, maps["displacement"])
+    mesh = displaced_mesh(prepared.base_mesh, maps["displacement"], prepared.base_atlas,
+                          prepared.render_base)
     atlas = texel_atlas(to_mitsuba(mesh), prepared.settings.texture)
     return FrameState(frame, maps, mesh, atlas, subsurface_albedo(maps, prepared.bands, prepared.quadrature),
                       layer_totals_maps(maps, prepared.quadrature))
@@ -473,6 +485,9 @@ def synthesize(outdir, settings, bands=None, truth_settings=None, overwrite=Fals
 
     bands = list(bands) if bands is not None else default_bands()
     prepared = prepare_capture(settings, bands, truth_settings)
+    if progress:
+        for note in prepared.notes:
+            print(f"synth: {note}", file=sys.stderr)
     manifest = capture_manifest(prepared)
     writer = CaptureWriter(outdir, manifest, overwrite=overwrite, resume=resume)
     writer.add_mesh(prepared.base_mesh)

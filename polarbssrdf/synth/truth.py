@@ -7,8 +7,9 @@ valid range. The biophysical maps start from a row of the supplement's
 Table 2, or from bases of their own (:func:`table2_offset_settings` moves
 them off the row's means by a number of Table 2 spreads); localized features
 (freckles, a patch of dermal blood: :data:`FEATURE_KEYS`) multiply a map
-inside smooth-edged disks on the surface; a dynamic sequence varies the
-hemoglobin fractions over frames.
+inside smooth-edged disks on the surface; wrinkles and pores are carved into
+the displacement (:mod:`polarbssrdf.synth.microgeometry`); a dynamic sequence
+varies the hemoglobin fractions over frames.
 """
 
 from __future__ import annotations
@@ -19,7 +20,16 @@ import pathlib
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from polarbssrdf.io.jsonfile import check_object_keys
 from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD, table2_spread_across_rows
+from polarbssrdf.synth.microgeometry import (
+    DEFAULT_PORES,
+    check_pores,
+    check_wrinkle,
+    face_wrinkle_paths,
+    relief_depth,
+    unresolved_features,
+)
 
 # name -> (base, standard deviation, lower bound, upper bound)
 DEFAULT_REFLECTANCE = {
@@ -47,6 +57,9 @@ SKIN_LAYERS = tuple(DEFAULT_SKIN_LAYERS)
 MAP_NAMES = tuple(DEFAULT_REFLECTANCE) + BIOPHYSICAL + SKIN_LAYERS
 BIOPHYSICAL_LIMITS = (0.0, 1.0)
 """Default ``[low, high]`` of a biophysical map: volume fractions."""
+
+FACE_WRINKLES = "face"
+"""``TruthSettings.wrinkles`` meaning the embedded face's default furrows."""
 
 FEATURE_KEYS = {
     "map": "the biophysical map it changes (C_m, beta_m, C_h_out or C_h_in)",
@@ -92,6 +105,18 @@ class TruthSettings:
         mm) and the blood's oxygen fraction (``gamma``) maps; defaults
         :data:`DEFAULT_SKIN_LAYERS` (cited there). Drawn after the features, so settings
         that leave them at their defaults keep the other maps.
+    wrinkles : "face" or list of dict
+        Furrows carved into the displacement map
+        (:mod:`polarbssrdf.synth.microgeometry`; keys in
+        :data:`~polarbssrdf.synth.microgeometry.WRINKLE_KEYS`). ``"face"`` (the
+        default): the embedded face's forehead lines, crow's feet and nasolabial folds
+        (:func:`~polarbssrdf.synth.microgeometry.face_wrinkle_paths`), none on an
+        object without the face's landmarks (the sphere); ``[]``: none.
+    pores : dict or None
+        Pits carved into the displacement map at a density per cm^2 (keys in
+        :data:`~polarbssrdf.synth.microgeometry.PORE_KEYS`; default
+        :data:`~polarbssrdf.synth.microgeometry.DEFAULT_PORES`); None: none. Their
+        centres are drawn last, so the other maps do not change with them.
     """
 
     reflectance: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_REFLECTANCE))
@@ -102,6 +127,8 @@ class TruthSettings:
     biophysical: dict = dataclasses.field(default_factory=dict)
     features: list = dataclasses.field(default_factory=list)
     skin_layers: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_SKIN_LAYERS))
+    wrinkles: object = FACE_WRINKLES
+    pores: dict | None = dataclasses.field(default_factory=lambda: dict(DEFAULT_PORES))
 
     def __post_init__(self):
         if tuple(self.skin) not in TABLE2:
@@ -128,6 +155,21 @@ class TruthSettings:
                              (0.02, 1.0) if name == "thickness_mm" else (0.0, 1.0))
         if self.correlation_mm <= 0:
             raise ValueError("correlation_mm must be > 0")
+        if self.wrinkles != FACE_WRINKLES:
+            if not isinstance(self.wrinkles, (list, tuple)):
+                raise ValueError(f"wrinkles must be {FACE_WRINKLES!r} or a list of objects, got "
+                                 f"{self.wrinkles!r}")
+            for index, wrinkle in enumerate(self.wrinkles):
+                check_wrinkle(wrinkle, f"wrinkles[{index}]")
+        if self.pores is not None:
+            check_pores(self.pores)
+
+    def wrinkle_list(self, landmarks=None):
+        """The wrinkles as a list: ``"face"`` becomes the face's default paths when the
+        ``landmarks`` mesh (the canonical face) is given, else none."""
+        if self.wrinkles == FACE_WRINKLES:
+            return face_wrinkle_paths(landmarks) if landmarks is not None else []
+        return list(self.wrinkles)
 
     def biophysical_maps(self):
         """``name -> (base, std, low, high)`` of the four biophysical maps as they are drawn."""
@@ -170,14 +212,7 @@ def check_field_spec(group, name, value, known, limits):
 
 def check_feature(feature, where="feature"):
     """``ValueError`` naming ``where`` and the key if ``feature`` is not a valid feature dict."""
-    if not isinstance(feature, dict):
-        raise ValueError(f"{where}: a feature must be an object with keys {sorted(FEATURE_KEYS)}")
-    unknown = sorted(set(feature) - set(FEATURE_KEYS))
-    if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; known: {sorted(FEATURE_KEYS)}")
-    for key in ("map", "factor", "diameter_mm"):
-        if key not in feature:
-            raise ValueError(f"{where}: missing key {key!r}")
+    check_object_keys(feature, where, "a feature", FEATURE_KEYS, ("map", "factor", "diameter_mm"))
     if feature["map"] not in BIOPHYSICAL:
         raise ValueError(f"{where}.map: {feature['map']!r} is not one of {list(BIOPHYSICAL)}")
     for key in ("factor", "diameter_mm", "edge_mm"):
@@ -243,6 +278,8 @@ def load_settings(path):
                                                         for k, v in data["skin_layers"].items()}}
     if "features" in data and not isinstance(data["features"], list):
         raise ValueError(f"{path}: features must be a list of objects")
+    if "wrinkles" in data and data["wrinkles"] != FACE_WRINKLES and not isinstance(data["wrinkles"], list):
+        raise ValueError(f"{path}: wrinkles must be {FACE_WRINKLES!r} or a list of objects")
     if "skin" in data:
         data["skin"] = tuple(data["skin"])
     try:
@@ -318,12 +355,15 @@ def smooth_field(shape, correlation_texels, rng):
     return field / max(field.std(), 1e-12)
 
 
-def truth_maps(atlas, settings, rng):
+def truth_maps(atlas, settings, rng, landmarks=None):
     """The static maps (T x T float32) of every parameter in :data:`MAP_NAMES`.
 
     The random fields are drawn first, in a fixed order, and the features'
     random centres after them, so settings without features give the same maps
-    as before features existed."""
+    as before features existed. The wrinkles and pores are carved into the
+    displacement last (their pores' centres drawn last); ``landmarks``: the
+    canonical face mesh when the atlas is the face's, for the default wrinkles
+    (:meth:`TruthSettings.wrinkle_list`)."""
     texel_mm = float(np.median(atlas.texel_size_mm[atlas.valid]))
     correlation = settings.correlation_mm / texel_mm
     shape = atlas.valid.shape
@@ -346,7 +386,18 @@ def truth_maps(atlas, settings, rng):
     for name, (base, std, low, high) in settings.layer_maps().items():
         field = np.clip(base + std * smooth_field(shape, correlation, rng), low, high)
         maps[name] = np.where(atlas.valid, field, base)
+    depth, _ = relief_depth(atlas, settings.wrinkle_list(landmarks), settings.pores, rng)
+    _, _, low, high = settings.reflectance["displacement"]
+    maps["displacement"] = np.where(atlas.valid, np.clip(maps["displacement"] - depth, low, high),
+                                    maps["displacement"])
     return {name: value.astype(np.float32) for name, value in maps.items()}
+
+
+def relief_notes(atlas, settings, landmarks=None):
+    """What of the wrinkles and pores the texture cannot hold
+    (:func:`~polarbssrdf.synth.microgeometry.unresolved_features`), for synth to say."""
+    texel_mm = float(np.median(atlas.texel_size_mm[atlas.valid]))
+    return unresolved_features(settings.wrinkle_list(landmarks), settings.pores, texel_mm)
 
 
 def feature_centres(atlas, feature, rng):

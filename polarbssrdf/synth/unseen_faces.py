@@ -70,6 +70,7 @@ def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_
     atlas = texel_atlas(to_mitsuba(face_mesh(1)), size)
     scale = 0.5 if index % 2 == 0 else 2.0
     fields = {"correlation_mm": 3.0, "features": FEATURES} if index % 2 else {}
+    fields.update(wrinkles=[], pores=None)  # albedo only: the relief would only move the noise draws
     layers = {"thickness_mm": (thickness_mm, WITHIN_FACE["thickness_mm"], 0.10, 0.40),
               "gamma": (gamma, WITHIN_FACE["gamma"], 0.50, 0.95)}
     row = TABLE2[row_key]

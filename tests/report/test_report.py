@@ -570,3 +570,32 @@ def test_the_demo_closing_lines_mark_maps_worse_than_a_constant():
     assert ("  no better than the best constant map (marked in the report): alpha_s (static), "
             "beta_m (bio, frames 0, 1)") in lines
     assert lines[-1].endswith("beta_m prior-dominated (frame 0)")
+
+
+def test_the_normals_section_shows_the_displacement_transfer_curve(monkeypatch):
+    """Issue 33 item 2: which scales of the relief a capture resolves, from evaluate's
+    displacement.transfer, beside the normal maps; nothing without an evaluation."""
+    from polarbssrdf.report import figures, page
+
+    curve = [{"sigma_mm": [low, high], "gain": gain, "correlation": 0.9, "truth_rms_mm": 0.01,
+              "error_rms_mm": 0.005}
+             for (low, high), gain in zip(((0.0, 0.9), (0.9, 1.8), (1.8, 3.6)), (0.2, 0.6, 0.9))]
+    figure = figures.transfer_figure(curve)
+    axes = figure.axes[0]
+    gains = axes.lines[1].get_ydata()  # after the reference line at 1
+    np.testing.assert_allclose(gains, [0.2, 0.6, 0.9])
+    centres = axes.lines[1].get_xdata()
+    assert centres[0] == pytest.approx(0.45) and centres[1] == pytest.approx(np.sqrt(0.9 * 1.8))
+
+    shape = (8, 8)
+    maps = {"confidence": np.ones(shape), **{f"normal.{a}": np.zeros(shape) for a in "xy"},
+            "normal.z": np.ones(shape)}
+    monkeypatch.setattr(page, "normals_png", lambda *a: b"png")
+    monkeypatch.setattr(page, "transfer_png", lambda c: repr(c).encode())
+    monkeypatch.setattr(page, "_image", lambda png, alt: f"<img alt='{alt}' data='{png.decode()}'>")
+    data = _fake_data(maps={"static": {0: maps}}, valid=np.ones(shape, bool),
+                      evaluation={"static": {"maps": {"displacement": {"transfer": curve}}}})
+    section = page.normals_section(data)
+    assert "displacement transfer curve" in section and "'gain': 0.6" in section
+    data = _fake_data(maps={"static": {0: maps}}, valid=np.ones(shape, bool))
+    assert "transfer" not in page.normals_section(data)

@@ -12,6 +12,7 @@ from scipy import ndimage
 from scipy.ndimage import gaussian_filter
 
 from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD, table2_spread_across_rows
+from polarbssrdf.synth.microgeometry import DEFAULT_PORES
 from polarbssrdf.synth.truth import (
     BIOPHYSICAL,
     DEFAULT_SKIN_LAYERS,
@@ -60,7 +61,9 @@ def old_truth_maps(atlas, settings, rng):
 
 @pytest.mark.parametrize("skin", [("forehead", "II"), ("cheek", "IV")])
 def test_settings_without_bases_or_features_draw_the_maps_they_drew_before(sphere, skin):
-    settings = TruthSettings(skin=skin)
+    # the wrinkles and pores (issue 33) are new, carved into the displacement last
+    # (tests/synth/test_microgeometry.py): without them the maps are the old ones
+    settings = TruthSettings(skin=skin, pores=None)
     ours = truth_maps(sphere, settings, np.random.default_rng(3))
     before = old_truth_maps(sphere, settings, np.random.default_rng(3))
     # the skin's layer maps are new, drawn after everything else
@@ -69,7 +72,7 @@ def test_settings_without_bases_or_features_draw_the_maps_they_drew_before(spher
         np.testing.assert_array_equal(ours[name], before[name], err_msg=name)
     # the row given explicitly as [base, std, 0, 1] is the same settings
     row = TABLE2[skin]
-    explicit = TruthSettings(skin=skin, biophysical={
+    explicit = TruthSettings(skin=skin, pores=None, biophysical={
         n: (getattr(row, n), settings.biophysical_std[n], 0.0, 1.0) for n in BIOPHYSICAL})
     again = truth_maps(sphere, explicit, np.random.default_rng(3))
     for name in ours:
@@ -172,7 +175,8 @@ def test_freckles_raise_melanin_severalfold_in_disks_of_their_size(sphere):
     plain = truth_maps(sphere, TruthSettings(), np.random.default_rng(9))
     spotted = truth_maps(sphere, TruthSettings(features=[freckles]), np.random.default_rng(9))
     for name in plain:
-        if name != "C_m" and name not in SKIN_LAYERS:  # those are drawn after the features' centres
+        # the layer maps and the pores are drawn after the features' centres
+        if name not in ("C_m", "displacement") and name not in SKIN_LAYERS:
             np.testing.assert_array_equal(spotted[name], plain[name], err_msg=name)
     ratio = np.where(sphere.valid, spotted["C_m"] / plain["C_m"], 1.0)
     assert ratio.max() == pytest.approx(factor, rel=0.05)
@@ -247,9 +251,10 @@ def test_the_record_of_default_settings_is_unchanged_and_features_are_recorded()
     from polarbssrdf.synth.synthesize import truth_settings_json
 
     record = truth_settings_json(TruthSettings())
-    # as before, and the skin's layer maps (issue 31)
+    # as before, and the skin's layer maps (issue 31), the wrinkles and pores (issue 33)
     assert set(record) == {"reflectance", "skin", "biophysical_std", "correlation_mm", "hemoglobin_swing",
-                           "skin_layers"}
+                           "skin_layers", "wrinkles", "pores"}
+    assert record["wrinkles"] == "face" and record["pores"] == DEFAULT_PORES
     assert record["skin_layers"] == {k: list(v) for k, v in DEFAULT_SKIN_LAYERS.items()}
     spotted = TruthSettings(features=[{"map": "C_m", "factor": 3, "diameter_mm": 2, "count": 4}],
                             biophysical={"C_m": (0.06, 0.005, 0.0, 0.5)})

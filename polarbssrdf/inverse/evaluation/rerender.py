@@ -31,7 +31,8 @@ import numpy as np
 from scipy.ndimage import binary_erosion
 
 from polarbssrdf._arrays import to_jit
-from polarbssrdf.geometry import SurfaceMesh, displace, to_mitsuba
+from polarbssrdf.geometry import SurfaceMesh, texel_atlas, to_mitsuba
+from polarbssrdf.geometry.displaced import displaced_mesh
 from polarbssrdf.inverse.observations.build import ANALYSER_ANGLES, analyser_images
 from polarbssrdf.io.mitsuba_camera import mitsuba_sensor_dict
 from polarbssrdf.render.view import (
@@ -68,7 +69,8 @@ def posed_mesh(mesh, pose):
     if np.allclose(pose, np.eye(4)):
         return mesh
     vertices = mesh.vertices @ pose[:3, :3].T + pose[:3, 3]
-    return SurfaceMesh(vertices, mesh.faces, mesh.uvs, name=mesh.name)
+    normals = None if mesh.normals is None else mesh.normals @ pose[:3, :3].T
+    return SurfaceMesh(vertices, mesh.faces, mesh.uvs, name=mesh.name, normals=normals)
 
 
 def view_scene(capture, maps, camera_name, frame=0, spp=DEFAULT_SPP, seed=0,
@@ -97,7 +99,9 @@ def view_scene(capture, maps, camera_name, frame=0, spp=DEFAULT_SPP, seed=0,
     clamped, counts = {}, {}
     for name in (*GLOSSY_MAPS, *(f"rho_sss.{band}" for band in bands)):
         clamped[name], counts[name] = clamp_to_plugin(name, maps[name])
-    mesh = displace(capture.load_mesh(), np.asarray(maps["displacement"], dtype=np.float64))
+    base = capture.load_mesh()
+    mesh = displaced_mesh(base, np.nan_to_num(np.asarray(maps["displacement"], dtype=np.float64)),
+                          texel_atlas(to_mitsuba(base), np.asarray(maps["displacement"]).shape[0]))
     mesh = posed_mesh(mesh, frame_record.pose)
     bsdf = glossy_bsdf_dict(clamped)
     bsdf["rho_sss"] = map_texture(clamped[f"rho_sss.{bands[0]}"])

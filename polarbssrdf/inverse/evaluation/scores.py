@@ -12,6 +12,10 @@ so) and every truth channel used is finite:
 * ``rho_s``, ``rho_ss`` and ``rho_sss.<band>``: the relative error
   ``mean |x - t| / t`` (over scored texels with ``t > 0``), next to
   ``constant_relative_error`` (the same for the truth's mean);
+* ``displacement["transfer"]``: the recovered displacement's gain and correlation
+  against the truth's per octave band of spatial scale
+  (:func:`~polarbssrdf.inverse.evaluation.transfer.displacement_transfer`): which
+  scales of the relief the capture resolves;
 * normals: mean and median angle (degrees) between the result's
   ``normal.x/y/z`` and the truth normals, :func:`normals_from_height` of the
   truth displacement on the atlas of the capture's base mesh; next to them
@@ -42,6 +46,7 @@ from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.geometry.height import normals_from_height
 from polarbssrdf.inverse.biophysical.model import PARAMETERS
 from polarbssrdf.inverse.evaluation import rerender
+from polarbssrdf.inverse.evaluation.transfer import displacement_transfer
 from polarbssrdf.inverse.results.directory import read_result, read_stage_maps
 from polarbssrdf.io.capture import Capture, load_capture
 from polarbssrdf.skin.parameters import table2_ranges
@@ -165,6 +170,9 @@ def evaluate_maps(maps, truth, atlas, band_names, units=None):
                          "mean_constant_relative_error":
                              float(np.mean(constant)) if constant else None}
 
+    texel_mm = float(np.median(np.asarray(atlas.texel_size_mm)[valid])) if valid.any() else 1.0
+    scores["displacement"]["transfer"] = displacement_transfer(
+        maps["displacement"], truth["displacement"], scored, texel_mm)
     truth_normal = normals_from_height(np.asarray(truth["displacement"], np.float64) * valid,
                                        atlas)
     result_normal = np.stack([maps[f"normal.{axis}"] for axis in "xyz"], axis=-1)
