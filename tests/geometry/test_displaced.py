@@ -14,7 +14,9 @@ T = 128
 
 
 def angle_deg(a, b):
-    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
+    """Angle between unit vectors, exact for small angles (arccos of float32 dots is not)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
 
 
 def tangential(normal, n0):
@@ -58,8 +60,11 @@ def test_zero_height_keeps_the_smooth_base_without_facets(face):
     flat = displaced_mesh(base, np.zeros_like(height), atlas)
     rendered = texel_atlas(to_mitsuba(flat), T)
     valid = atlas.valid & rendered.valid
-    # float32 normals: arccos resolves about 0.03 deg
-    assert np.percentile(angle_deg(rendered.normal, atlas.normal)[valid], 99) < 0.1
+    # the carried normals are renormalized at each level's midpoints, where Mitsuba
+    # interpolates the coarse ones directly: a second-order difference, largest where the
+    # base's normals turn fast; far below the facets (> 0.5 deg) and the relief (0.7 deg)
+    off = angle_deg(rendered.normal, atlas.normal)[valid]
+    assert np.median(off) < 0.01 and np.percentile(off, 99) < 0.1
     assert np.abs(rendered.position - atlas.position)[valid].max() < 1e-3  # mm
     faceted = texel_atlas(to_mitsuba(face_mesh(1 + subdivisions_for_texels(base, atlas))), T)
     assert np.median(angle_deg(faceted.normal, atlas.normal)[valid & faceted.valid]) > 0.5
