@@ -11,7 +11,12 @@ MAE / constant map's MAE and the 2-std coverage, and the face's oxygenation (tru
 std), against issue 31's figures
 (C_m, C_h_out, C_h_in <= 0.5, beta_m <= 1, coverage in [0.90, 0.98]; noise-free all < 0.05).
 
-    .venv/bin/python bench/bio_off_prior.py [--size 128] [--noise 0.01] [--faces 0,1,2,3,4,5]
+``--oracle`` measures what the noise alone leaves: the thickness and oxygenation constant over
+each face and handed to the fit (held, not marginalized), the index exact. What the fit misses
+there no estimate of the skin's other unknowns can recover (docs/biophysical.md, "What six
+bands can tell").
+
+    .venv/bin/python bench/bio_off_prior.py [--size 128] [--noise 0.01] [--faces 0,1,2,3,4,5] [--oracle]
 """
 
 import argparse
@@ -56,6 +61,11 @@ def main():
     parser.add_argument("--eta-error", type=float, default=0.013)
     parser.add_argument("--faces", default="0,1,2,3,4,5")
     parser.add_argument("--config", default="{}", help="a JSON bio config object (default: the defaults)")
+    parser.add_argument("--oracle", action="store_true",
+                        help="the skin's other unknowns constant over the face, exact and held by the fit")
+    parser.add_argument("--bands", metavar="FILE.json",
+                        help="band curves to integrate and fit over (default: the shipped six), e.g. "
+                             "from 'polarbssrdf skin design-bands --write-bands'")
     parser.add_argument("--oxygenation-only", action="store_true",
                         help="only estimate each face's oxygenation (face_oxygenation) and print it")
     args = parser.parse_args()
@@ -63,12 +73,24 @@ def main():
     from polarbssrdf.inverse.biophysical.config import bio_config
     from polarbssrdf.inverse.biophysical.fit import fit_biophysical
     from polarbssrdf.inverse.evaluation.scores import biophysical_scores
+    from polarbssrdf.spectral import read_bands
 
-    config, _ = bio_config(json.loads(args.config))
+    overrides = json.loads(args.config)
+    if args.oracle:
+        args.eta_error = 0.0
+        # a face-value std of 0 is refused; 1e-6 leaves nothing for the std to marginalize
+        overrides = {"thickness_mm": args.thickness, "gamma": args.gamma, "oxygenation": "held",
+                     "nuisance_std": {"thickness_mm": 0.0, "gamma": 0.0, "eta": 0.0},
+                     "nuisance_mean": {"thickness_mm": [args.thickness, 1e-6], "gamma": [args.gamma, 1e-6]},
+                     **overrides}
+    config, _ = bio_config(overrides)
+    within = {"thickness_mm": 0.0, "gamma": 0.0} if args.oracle else None
+    band_set = read_bands(args.bands) if args.bands else None
     rows = []
     for index in (int(v) for v in args.faces.split(",")):
         atlas, truth, bands, inputs = unseen_face(index, args.size, args.noise, args.thickness, args.gamma,
-                                                  args.eta_error)
+                                                  args.eta_error, within_face=within,
+                                                  bands=band_set)
         if args.oxygenation_only:
             print(json.dumps(oxygenation_row(index, atlas, truth, bands, inputs, config)), flush=True)
             continue

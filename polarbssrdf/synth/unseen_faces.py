@@ -42,7 +42,8 @@ INDEX_ERROR_LENGTH_MM = 5.0
 """Correlation length (mm) of the input index's error."""
 
 
-def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_error=INDEX_ERROR):
+def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_error=INDEX_ERROR,
+                within_face=None, bands=None):
     """``(atlas, truth, bands, inputs)`` of face ``index`` (module docstring).
 
     Parameters
@@ -59,6 +60,11 @@ def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_
     eta_error : float
         Spread of the smooth error added to the truth's index in ``inputs["eta"]`` (0: the
         truth's index and no ``eta_std``).
+    within_face : dict, optional
+        ``{"thickness_mm": mm, "gamma": fraction}``: their spread within the face (default
+        :data:`WITHIN_FACE`; 0 makes them constant over the face).
+    bands : list of Band, optional
+        The bands the albedo is integrated over (default: the shipped six).
 
     ``inputs`` holds ``rho_sss.<band>`` per default band, ``eta`` and, with an index error,
     ``eta_std``: what :func:`~polarbssrdf.inverse.biophysical.fit.fit_biophysical` reads.
@@ -71,8 +77,9 @@ def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_
     scale = 0.5 if index % 2 == 0 else 2.0
     fields = {"correlation_mm": 3.0, "features": FEATURES} if index % 2 else {}
     fields.update(wrinkles=[], pores=None)  # albedo only: the relief would only move the noise draws
-    layers = {"thickness_mm": (thickness_mm, WITHIN_FACE["thickness_mm"], 0.10, 0.40),
-              "gamma": (gamma, WITHIN_FACE["gamma"], 0.50, 0.95)}
+    within = {**WITHIN_FACE, **(within_face or {})}
+    layers = {"thickness_mm": (thickness_mm, within["thickness_mm"], 0.10, 0.40),
+              "gamma": (gamma, within["gamma"], 0.50, 0.95)}
     row = TABLE2[row_key]
     across = table2_spread_across_rows()
     # 2x where the base allows it (a field is refused within two of its std of 0)
@@ -82,7 +89,7 @@ def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_
                                       biophysical_std=std, **fields)
     rng = np.random.default_rng(SEED_BASE + index)
     truth = truth_maps(atlas, settings, rng)
-    bands = default_bands()
+    bands = default_bands() if bands is None else list(bands)
     albedo = subsurface_albedo(truth, bands)
     noisy = albedo * (1.0 + noise * rng.standard_normal(albedo.shape))
     inputs = {f"rho_sss.{b.name}": noisy[i] for i, b in enumerate(bands)}
