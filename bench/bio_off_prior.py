@@ -62,7 +62,8 @@ def main():
     parser.add_argument("--faces", default="0,1,2,3,4,5")
     parser.add_argument("--config", default="{}", help="a JSON bio config object (default: the defaults)")
     parser.add_argument("--oracle", action="store_true",
-                        help="the skin's other unknowns constant over the face, exact and held by the fit")
+                        help="the thickness and oxygenation constant over each face, the index exact (--eta-error "
+                             "is ignored), all three held by the fit at their true values")
     parser.add_argument("--bands", metavar="FILE.json",
                         help="band curves to integrate and fit over (default: the shipped six), e.g. "
                              "from 'polarbssrdf skin design-bands --write-bands'")
@@ -78,10 +79,9 @@ def main():
     overrides = json.loads(args.config)
     if args.oracle:
         args.eta_error = 0.0
-        # a face-value std of 0 is refused; 1e-6 leaves nothing for the std to marginalize
         overrides = {"thickness_mm": args.thickness, "gamma": args.gamma, "oxygenation": "held",
                      "nuisance_std": {"thickness_mm": 0.0, "gamma": 0.0, "eta": 0.0},
-                     "nuisance_mean": {"thickness_mm": [args.thickness, 1e-6], "gamma": [args.gamma, 1e-6]},
+                     "nuisance_mean": {"thickness_mm": [args.thickness, 0.0], "gamma": [args.gamma, 0.0]},
                      **overrides}
     config, _ = bio_config(overrides)
     within = {"thickness_mm": 0.0, "gamma": 0.0} if args.oracle else None

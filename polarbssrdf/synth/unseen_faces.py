@@ -66,7 +66,7 @@ def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_
     bands : list of Band, optional
         The bands the albedo is integrated over (default: the shipped six).
 
-    ``inputs`` holds ``rho_sss.<band>`` per default band, ``eta`` and, with an index error,
+    ``inputs`` holds ``rho_sss.<band>`` per band, ``eta`` and, with an index error,
     ``eta_std``: what :func:`~polarbssrdf.inverse.biophysical.fit.fit_biophysical` reads.
     """
 
