@@ -85,8 +85,9 @@ def test_frames_follow_the_flush_with_the_static_index_and_roughness(sequence):
 
 
 def test_maps_the_static_stage_held_at_the_face_level_stay_held_in_every_frame(sequence):
-    """A frame has the static frame's views: a map those could not tell per texel is not refitted
-    per frame (on the demo that made rho_s 1.08x the constant map's error, coverage 0.53)."""
+    """A frame has the static frame's views: a map those could not tell per texel is written at
+    the static stage's level and std in every frame (the frame's own per-texel rho_s was 1.08x
+    the constant map's error on the demo, 2-std coverage 0.53)."""
     from polarbssrdf.inverse.polarimetric.dynamic import OPTIMIZED, static_held_maps
     from polarbssrdf.inverse.results.directory import read_result
     from polarbssrdf.io.exr import read_exr
