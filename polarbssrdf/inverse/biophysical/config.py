@@ -84,8 +84,9 @@ class BiophysicalConfig:
     nuisance_std : dict
         ``name -> std`` within a face of what the std marginalizes (:data:`NUISANCES`,
         :data:`DEFAULT_NUISANCE_STD`): the thickness (mm) and oxygenation about their face
-        values, the index about the input map (an input ``eta_std`` map, the static stage's
-        posterior, replaces it by its median). 0 leaves a nuisance out of the std.
+        values, the index about the input map (an input ``eta_std`` map replaces it by its
+        median; ``reconstruct`` passes none, :func:`~.stage.albedo_inputs`). 0 leaves a
+        nuisance out of the std.
     nuisance_mean : dict
         ``name -> [mean, std]`` of the face's thickness (mm) and oxygenation
         (:data:`DEFAULT_NUISANCE_MEAN`): the hyperprior of the face values.

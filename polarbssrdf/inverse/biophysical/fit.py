@@ -158,10 +158,49 @@ def _checked_inputs(albedo_maps, bands, shape, surface, config):
     observed = np.clip(np.stack([fill_from_neighbours(o, good, surface) for o in observed]), 1e-4, 1.0)
     eta_std = None
     if "eta_std" in albedo_maps:
-        values = np.asarray(albedo_maps["eta_std"], dtype=np.float64)[good]
+        values = np.asarray(albedo_maps["eta_std"], dtype=np.float64)
+        if values.shape != tuple(shape):
+            raise ValueError(f"map 'eta_std' is {values.shape}, the atlas is {tuple(shape)}")
+        values = values[good]
         values = values[np.isfinite(values) & (values > 0)]
         eta_std = float(np.median(values)) if values.size else None
     return observed, eta, eta_std, good
+
+
+NOISE_SCALE_FLOOR = 0.25
+"""Smallest :func:`texel_noise_scale`: a texel whose input std claims far less noise than the
+face's typical texel would otherwise outweigh its neighbours on a std that may be a hair from 0."""
+
+
+def texel_noise_scale(albedo_maps, bands, observed, good):
+    """(T, T) each texel's albedo noise relative to the face's typical texel, from the input's
+    ``rho_sss.<band>_std`` (the static stage's per-texel posterior); 1 everywhere without them.
+
+    Per texel the root mean square over bands of the relative std ``std_b / a_b``, divided by
+    its median over the texels that enter the data term, floored at
+    :data:`NOISE_SCALE_FLOOR`. The static stage's std varies over a face with the views that
+    see each texel (2-3x between the 10th and 90th percentile texel of the demo and of a
+    4-view cheek): the biophysical stage keeps its own calibration of the noise's level and
+    band structure (``calibrated_noise``) and takes from the input only how each texel's noise
+    stands to the typical one's (issue 33, item 5). Texels without a finite positive std in
+    every band get 1."""
+
+    shape = good.shape
+    names = [f"rho_sss.{band.name}_std" for band in bands]
+    if not all(name in albedo_maps for name in names):
+        return np.ones(shape)
+    std = []
+    for name in names:
+        values = np.asarray(albedo_maps[name], dtype=np.float64)
+        if values.shape != tuple(shape):
+            raise ValueError(f"map {name!r} is {values.shape}, the atlas is {tuple(shape)}")
+        std.append(values)
+    relative = np.sqrt(np.mean(np.square(np.stack(std) / observed), axis=0))
+    usable = good & np.isfinite(relative) & (relative > 0)
+    if not usable.any():
+        return np.ones(shape)
+    scale = relative / float(np.median(relative[usable]))
+    return np.where(usable, np.maximum(scale, NOISE_SCALE_FLOOR), 1.0)
 
 
 def nuisance_priors(config, eta_std, face):
@@ -208,8 +247,9 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
         ``rho_sss.<band>`` (T, T) lobe albedo maps for every band (result or
         truth channel names); optional ``eta`` (T, T) refractive index map
         (else ``config.eta``) with its ``eta_std`` (the static stage's posterior:
-        its median is the index's spread), and ``confidence`` (texels with 0 are
-        flagged).
+        its median is the index's spread), optional ``rho_sss.<band>_std`` for every
+        band (each texel's noise relative to the typical texel's weighs its data,
+        :func:`texel_noise_scale`), and ``confidence`` (texels with 0 are flagged).
     bands : list of Band
     atlas : TexelAtlas
         The mesh's texel atlas at the maps' resolution (texel sizes in mm).
@@ -273,7 +313,8 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
 
     quadrature = spectral_quadrature(bands, config.spectral)
     model = BiophysicalModel(quadrature, atlas, eta, face["thickness_mm"], config.bounds, gamma=face["gamma"])
-    data = DataTerm(model, observed, good.astype(np.float64), np.full(len(bands), config.albedo_noise),
+    noise_scale = texel_noise_scale(albedo_maps, bands, observed, good)
+    data = DataTerm(model, observed, good / noise_scale, np.full(len(bands), config.albedo_noise),
                     config.common_noise)
     length = {"correlation_mm": config.correlation_mm, "from": "config"}
     spatial = None
@@ -351,7 +392,11 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     predicted = np.stack(_predicted(data, maps)).reshape(len(bands), *shape).astype(np.float32)
     residual = np.where(good, np.sqrt(np.mean((predicted - observed) ** 2, axis=0)), 0.0)
     out = {n: maps[n].astype(np.float32) for n in PARAMETERS}
-    noise.update(correlation_length=length, face=face, model=config.noise, std_noise=config.std_noise)
+    scale_quantiles = np.quantile(noise_scale[good], [0.1, 0.5, 0.9])
+    noise.update(correlation_length=length, face=face, model=config.noise, std_noise=config.std_noise,
+                 texel_noise_scale={"from": "input std" if np.any(noise_scale != 1.0) else "none",
+                                    "q10": float(scale_quantiles[0]), "q50": float(scale_quantiles[1]),
+                                    "q90": float(scale_quantiles[2])})
     return BiophysicalResult(out, residual.astype(np.float32), flagged, kernels, history,
                              predicted, start_copy, time.perf_counter() - t0, std, noise)
 

@@ -16,9 +16,10 @@ and small (0.01 mm, 0.02, 0.015 within a face), so the second-order terms stay
 below 0.1% of the albedo; the fit re-centres the index and re-linearizes between
 rounds.
 
-The data term is ``1/2 sum_i r_i^T S^-1 r_i`` over texels of the relative residuals
-``r_b = (A_b - a_b) / a_b`` with covariance ``S = diag(sigma^2) + common^2 1 1^T``
-(:meth:`DataTerm.set_noise`).
+The data term is ``1/2 sum_i r_i^T S^-1 r_i / q_i^2`` over texels of the relative residuals
+``r_b = (A_b - a_b) / a_b`` with covariance ``q_i^2 S``, ``S = diag(sigma^2) + common^2 1 1^T``
+(:meth:`DataTerm.set_noise`) and ``q_i`` the texel's noise relative to the face's typical
+texel (1 unless the input carries a per-texel std).
 """
 
 from __future__ import annotations
@@ -94,7 +95,9 @@ class DataTerm:
     observed : (n_bands, T, T) array
         The input lobe albedo (filled at flagged texels).
     weight : (T, T) array
-        1 where a texel enters the data term, 0 where it does not (flagged).
+        ``1 / q`` where a texel enters the data term, its noise ``q`` times the bands' noise
+        ``S`` (1 for the face's typical texel; :func:`~.fit.texel_noise_scale`), 0 where it
+        does not (flagged).
     sigma, common : the starts of the noise (:meth:`set_noise`).
     """
 

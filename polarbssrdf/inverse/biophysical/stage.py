@@ -88,8 +88,15 @@ def source_frames(outdir):
 
 
 def albedo_inputs(maps, bands):
-    """The channels :func:`fit_biophysical` reads from a result's map file."""
-    wanted = [f"rho_sss.{band.name}" for band in bands] + ["eta", "confidence"]
+    """The channels :func:`fit_biophysical` reads from a result's map file: the albedo per band,
+    the index, confidence and the albedo's std per band when the file has them.
+
+    Not ``eta_std``: the static stage's index std is wider than the index's error on the demo
+    (its median 0.038 against an error of 0.021 rms, 2-std coverage 0.993), and with it the
+    chromophores' coverage rose to 0.99 there; the config's index spread (0.015) is used until
+    that std is right (docs/biophysical.md)."""
+    wanted = ([f"rho_sss.{band.name}" for band in bands] + ["eta", "confidence"]
+              + [f"rho_sss.{band.name}_std" for band in bands])
     missing = [name for name in wanted[:len(bands)] if name not in maps]
     if missing:
         raise ValueError(f"the maps lack {', '.join(missing)} (they have "

@@ -60,10 +60,17 @@ def relative_residuals(data, predicted):
     return (np.stack([np.ravel(p) for p in predicted]) - observed) / np.maximum(observed, 1e-3)
 
 
+def texel_scaled_residuals(data, predicted):
+    """(n_bands, T*T) :func:`relative_residuals` over each texel's noise scale ``q_i`` (times the
+    data term's weight ``1 / q_i``; 0 where a texel does not enter): residuals of noise ``S``."""
+    return relative_residuals(data, predicted) * np.ravel(data.weight)[None]
+
+
 def calibrated_noise(data, predicted, covariance, J, movable):
     """``(sigma (n_bands,), common, figures)``: the noise re-estimated from the residuals.
 
-    Per texel the relative residuals ``r_b`` split into their mean over bands
+    Per texel the relative residuals ``r_b`` (over the texel's noise scale ``q_i``,
+    :func:`texel_scaled_residuals`) split into their mean over bands
     ``m`` (the band-common part) and the rest ``e_b``. For noise of covariance
     ``diag(sigma^2) + common^2 1 1^T`` over ``B`` bands (equal ``sigma``),
     ``E[e_b^2] = sigma_b^2 (B - 1) / B`` and ``E[m^2] = common^2 + mean(sigma^2) / B``.
@@ -74,7 +81,7 @@ def calibrated_noise(data, predicted, covariance, J, movable):
 
     B = len(predicted)
     weight = data.scale_numpy[:, movable] > 0
-    relative = relative_residuals(data, predicted)[:, movable]
+    relative = texel_scaled_residuals(data, predicted)[:, movable]
     texels = np.all(weight, axis=0)
     relative = relative[:, texels]
     count = relative.size
@@ -97,7 +104,7 @@ correlation; beyond them it is taken as 0."""
 
 
 def residual_correlation(data, predicted, valid, radius=CORRELATION_RADIUS, jacobian=None, movable=None):
-    """``(dy, dx) -> rho``: the correlation of the whitened relative residuals ``r_b / sigma_b``
+    """``(dy, dx) -> rho``: the correlation of the whitened relative residuals ``r_b / (q_i sigma_b)``
     between texels ``(dy, dx)`` apart (both with valid input), pooled over bands.
 
     The albedo a capture gives is not white across texels: the demo's static albedo
@@ -113,7 +120,7 @@ def residual_correlation(data, predicted, valid, radius=CORRELATION_RADIUS, jaco
 
     B = len(predicted)
     T = valid.shape[0]
-    z = relative_residuals(data, predicted).reshape(B, T, T) / data.sigma[:, None, None]
+    z = texel_scaled_residuals(data, predicted).reshape(B, T, T) / data.sigma[:, None, None]
     if jacobian is not None:
         flat = z.reshape(B, -1)[:, movable].T  # (n, B)
         normal = np.einsum("nbi,nbj->nij", jacobian, jacobian) + 1e-12 * np.eye(jacobian.shape[-1])

@@ -338,7 +338,8 @@ def test_residual_correlation_measures_the_noise_between_neighbours():
     observed = rng.uniform(0.2, 0.6, (B, T, T))
     predicted = observed * (1.0 + noise)
     valid = rng.uniform(size=(T, T)) > 0.25
-    loss_fn = types.SimpleNamespace(observed_numpy=observed.reshape(B, -1), sigma=sigma)
+    loss_fn = types.SimpleNamespace(observed_numpy=observed.reshape(B, -1), sigma=sigma,
+                                    weight=valid.astype(np.float64))
     correlation = residual_correlation(loss_fn, [p.ravel() for p in predicted], valid)
     assert correlation[(0, 1)] == pytest.approx(0.5, abs=0.03)
     assert correlation[(0, -1)] == correlation[(0, 1)]
@@ -367,7 +368,8 @@ def test_projected_residual_correlation_ignores_what_the_maps_absorb():
     observed = np.full((B, T, T), 0.4)
     predicted = observed * (1.0 + sigma[:, None, None] * (noise + absorbed))
     valid = np.ones((T, T), bool)
-    loss_fn = types.SimpleNamespace(observed_numpy=observed.reshape(B, -1), sigma=sigma)
+    loss_fn = types.SimpleNamespace(observed_numpy=observed.reshape(B, -1), sigma=sigma,
+                                    weight=valid.astype(np.float64))
     pooled = residual_correlation(loss_fn, [p.ravel() for p in predicted], valid)
     projected = residual_correlation(loss_fn, [p.ravel() for p in predicted], valid,
                                      jacobian=directions, movable=np.ones(T * T, bool))
