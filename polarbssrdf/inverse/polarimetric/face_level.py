@@ -38,8 +38,6 @@ from __future__ import annotations
 
 import numpy as np
 
-import numpy as np
-
 from polarbssrdf._arrays import to_jit
 from polarbssrdf.inverse.polarimetric.model import GLOSSY_PARAMETERS
 from polarbssrdf.inverse.polarimetric.posterior import prior_precisions, texel_information
