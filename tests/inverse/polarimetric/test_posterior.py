@@ -187,18 +187,22 @@ def noisy_sphere_fit():
     result = run_polarimetric_fit(store, atlas, static_config(iterations=150, patch_size=T),
                                   progress=False)
     truth.update({f"rho_sss.b{b}": rho_sss[b] for b in range(2)})
+    truth["displacement"] = np.zeros((T, T), np.float32)  # the views see the undisplaced sphere
     return result, truth, (result.maps["confidence"] > 0) & atlas.valid
 
 
-MISSED_COVERAGE = {"alpha_s": 0.49, "rho_s": 1.0, "rho_ss": 1.0, "alpha_ss": 1.0}
+MISSED_COVERAGE = {"alpha_s": 0.49, "rho_s": 1.0, "rho_ss": 1.0, "alpha_ss": 1.0,
+                   "displacement": 1.0}
 """2-std coverage measured on the noisy sphere (2026-12-05) where it misses the issue's range:
 alpha_s is barely seen by 12 ring views with coaxial light and its posterior is too narrow;
 rho_s, rho_ss and alpha_ss are held at the face level with the fitted spread as their std,
-an upper bound that over-covers."""
+an upper bound that over-covers. The displacement (no relief in the truth) comes out 0.018 mm
+rms with a median std of 0.076 mm, while on the demo face it covers 0.26 (bench/RESULTS.md):
+its std is off in both directions."""
 
 
 @pytest.mark.parametrize("name", ["eta", "rho_s", "alpha_s", "rho_ss", "alpha_ss",
-                                  "rho_sss.b0", "rho_sss.b1"])
+                                  "rho_sss.b0", "rho_sss.b1", "displacement"])
 def test_the_posterior_std_covers_the_error_on_a_noisy_sphere(noisy_sphere_fit, name, request):
     if name in MISSED_COVERAGE:
         request.applymarker(pytest.mark.xfail(
