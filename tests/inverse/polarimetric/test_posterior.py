@@ -197,8 +197,10 @@ MISSED_COVERAGE = {"alpha_s": 0.49, "rho_s": 1.0, "rho_ss": 1.0, "alpha_ss": 1.0
 alpha_s is barely seen by 12 ring views with coaxial light and its posterior is too narrow;
 rho_s, rho_ss and alpha_ss are held at the face level with the fitted spread as their std,
 an upper bound that over-covers. The displacement (no relief in the truth) comes out 0.018 mm
-rms with a median std of 0.076 mm, while on the demo face it covers 0.26 (bench/RESULTS.md):
-its std is off in both directions."""
+rms with a median std of 0.076 mm, 0.074 of it the patch's mean level: a constant displacement
+leaves every normal as it is, and only H_magnitude's weak pull (2.4 mm std per texel, over this
+32^2 patch) holds it. On the demo face (one 256^2 patch) that term is 0.006 mm and the
+displacement covers 0.26 (bench/RESULTS.md): its std is off in both directions."""
 
 
 @pytest.mark.parametrize("name", ["eta", "rho_s", "alpha_s", "rho_ss", "alpha_ss",
