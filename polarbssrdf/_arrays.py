@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
 
 
 def is_numpy(array):
@@ -76,3 +77,13 @@ def edge_shift_adjoint(values, axis, step):
         out[:-1] += source[1:]
         out[0] += source[0]
     return np.moveaxis(out, 0, axis)
+
+
+def masked_low_pass(values, mask, sigma_texels):
+    """Gaussian low-pass of ``values`` over the ``mask`` texels only (normalized convolution;
+    ``sigma_texels`` 0: the values themselves)."""
+    if sigma_texels <= 0:
+        return np.asarray(values, np.float64)
+    weight = np.asarray(mask, np.float64)
+    smooth = gaussian_filter(np.asarray(values, np.float64) * weight, sigma_texels)
+    return smooth / np.maximum(gaussian_filter(weight, sigma_texels), 1e-9)

@@ -63,7 +63,14 @@ def test_a_diagonal_covariance_is_white_noise_and_a_common_error_costs(bands):
     np.testing.assert_allclose(diagonal.std, white.std, rtol=1e-9)
     n = len(bands)
     common = info.NoiseModel("covariance", matrix=1e-4 * np.eye(n) + 0.02 ** 2 * np.ones((n, n)))
-    assert np.all(info.band_bounds(bands, common).std > white.std)
+    costly = info.band_bounds(bands, common).std
+    # a common error never lowers a bound; it raises those of the chromophores whose band
+    # signature has a common part (C_m, C_h_out: by 1-15% here). For C_h_in of some rows the
+    # signature, the other parameters marginalized, is orthogonal to the common direction:
+    # its bound moves by 1e-12 of itself (either sign, rounding) on a 2-core AMD EPYC
+    assert np.all(costly >= white.std * (1 - 1e-9))
+    chromophores = [info.PARAMETERS.index("C_m"), info.PARAMETERS.index("C_h_out")]
+    assert np.all(costly[:, chromophores] > white.std[:, chromophores])
 
 
 def test_no_band_lowers_the_bound_by_being_removed(bands):

@@ -13,20 +13,11 @@ cameras), measured against the truth rather than a test chart.
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
+
+from polarbssrdf._arrays import masked_low_pass
 
 OCTAVES = 5
 """Bands of Gaussian scale ``[0, 1], [1, 2], [2, 4], [4, 8], [8, 16]`` texels."""
-
-
-def masked_low_pass(values, mask, sigma_texels):
-    """Gaussian low-pass of ``values`` over the ``mask`` texels only (normalized convolution;
-    ``sigma_texels`` 0: the values themselves)."""
-    if sigma_texels <= 0:
-        return np.asarray(values, np.float64)
-    weight = np.asarray(mask, np.float64)
-    smooth = gaussian_filter(np.asarray(values, np.float64) * weight, sigma_texels)
-    return smooth / np.maximum(gaussian_filter(weight, sigma_texels), 1e-9)
 
 
 def displacement_transfer(recovered, truth, mask, texel_mm, octaves=OCTAVES):

@@ -312,3 +312,39 @@ def test_biophysical_frames_on_workers_equal_serial_ones_and_see_the_flush(seque
         np.testing.assert_array_equal(maps["C_m"][cheeks], first["C_m"][cheeks])
         hemoglobin.append(float(maps["C_h_out"][cheeks].mean()))
     assert all(b > a for a, b in zip(hemoglobin, hemoglobin[1:]))  # the flush rises every frame
+
+
+@pytest.mark.parametrize("smoothing", [True, False])
+def test_the_albedo_pull_holds_noise_and_frees_a_flush(monkeypatch, smoothing):
+    """Eq. 39's robust weight reads the albedo's change averaged over neighbours: per texel, a
+    1.5% sensor noise alone moves most texels past the 1% scale and frees them."""
+    from types import SimpleNamespace
+
+    import mitsuba as mi
+
+    from polarbssrdf.inverse.polarimetric import optimize
+
+    mi.set_variant("llvm_ad_mono_polarized")
+    if not smoothing:
+        monkeypatch.setattr(optimize, "TEMPORAL_CHANGE_SIGMA_TEXELS", 0.0)
+    size = 48
+    rows, cols = np.mgrid[:size, :size]
+    radius = np.hypot(rows - size / 2, cols - size / 2)
+    reference = np.full((2, size * size), 0.3)
+    flush = np.where(radius < 12, 0.06, 0.0).ravel()  # a cheek 6% brighter
+    noise = np.random.default_rng(5).normal(0.0, 0.015, size * size)
+    current = reference * (1.0 + flush + noise)
+    params = SimpleNamespace(reference={"rho_sss": reference},
+                             reference_weights={"rho_sss_temporal": 1.0})
+    prepared = SimpleNamespace(window_index=np.arange(size * size),
+                               window_valid=np.ones((size, size), bool), image_scale=1.0)
+    _, strength, _ = optimize._temporal_albedo_term(
+        params, prepared, mi.Float(np.ones(10)), SimpleNamespace(photometric_noise=0.01), current)
+    held = strength * size * size  # the robust weight W per texel
+    still, flushed = held[(radius > 15).ravel()], held[(radius < 9).ravel()]
+    print("median W without change", np.median(still), "in the flush", np.median(flushed))
+    assert np.median(flushed) < 0.1
+    if smoothing:
+        assert np.median(still) > 0.8
+    else:
+        assert np.median(still) < 0.5
