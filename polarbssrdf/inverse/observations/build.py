@@ -11,10 +11,10 @@ For one frame of a capture and a ``T x T`` texel atlas of its mesh, each image
 * projects (OpenCV model with distortion, :meth:`Camera.project` of the
   world position; pixel centres at integers) inside the image with a
   1-pixel margin,
-* samples only pixels that see the mesh alone (:func:`mixed_pixels`): a
-  pixel whose area reaches past the mesh's outline or straddles an
-  occluding contour holds light from something the per-texel model does not
-  describe (the black background around synth's face mask made rim
+* samples only pixels that see the mesh alone, evenly lit
+  (:func:`mixed_pixels`): a pixel whose area reaches past the mesh's outline,
+  straddles an occluding contour or a shadow's edge holds light the
+  per-texel model does not describe (the black background around synth's face mask made rim
   texel-views 11% darker on average, and the fit bent the relief to explain
   them), and
 * has finite analyser samples in every band (NaN pixels drop only the
@@ -271,8 +271,8 @@ def pixel_corner_rays(camera, pose) -> tuple[np.ndarray, np.ndarray]:
     return origin, directions.reshape(height + 1, width + 1, 3)
 
 
-def mixed_pixels(surface, camera, pose, min_cosine) -> np.ndarray:
-    """(H, W) bool: pixels whose area does not see one continuous piece of the mesh.
+def mixed_pixels(surface, camera, pose, min_cosine, light_position=None) -> np.ndarray:
+    """(H, W) bool: pixels whose area does not see one continuous, evenly lit piece of the mesh.
 
     A pixel is *mixed* when a ray through one of its four corners misses the
     mesh (its area reaches past the outline: in synth the background is
@@ -282,7 +282,11 @@ def mixed_pixels(surface, camera, pose, min_cosine) -> np.ndarray:
     ``min_cosine`` keeps (``cos theta > min_cosine``) can recede across one
     pixel of angular size ``1 / f`` at distance ``t``, twice (an occluding
     contour, such as the nose's side over the cheek, jumps by far more).
-    Texel-views whose bilinear stencil touches a mixed pixel are dropped.
+    With ``light_position`` (object space, mm) a pixel is also mixed when its
+    corners see the mesh but some of them lie in the light's shadow and some
+    do not: a shadow's edge crosses it (the texel-view's own shadow test looks
+    at its centre only). Texel-views whose bilinear stencil touches a mixed
+    pixel are dropped.
     """
 
     origin, directions = pixel_corner_rays(camera, pose)
@@ -301,7 +305,16 @@ def mixed_pixels(surface, camera, pose, min_cosine) -> np.ndarray:
     focal = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
     with np.errstate(invalid="ignore"):
         contour = (farthest - nearest) > MIXED_DEPTH_SLACK * nearest * steepest / focal
-    return ~np.isfinite(farthest) | contour
+    mixed = ~np.isfinite(farthest) | contour
+    if light_position is not None and hit.any():
+        shadowed = np.zeros(shape, bool)
+        # back off toward the camera, which sees the point: above the surface, below a texel
+        points = origin + flat[hit.ravel()] * (distance[hit] - surface.epsilon_mm)[:, None]
+        shadowed[hit] = surface.occluded(points, np.broadcast_to(light_position, points.shape))
+        corners = np.stack([shadowed[:-1, :-1], shadowed[:-1, 1:], shadowed[1:, :-1],
+                            shadowed[1:, 1:]])
+        mixed |= corners.any(axis=0) & ~corners.all(axis=0)
+    return mixed
 
 
 # --------------------------------------------------------------------------- images
@@ -454,7 +467,7 @@ def observation_fingerprint(capture, frame_index, texture_size, *, exclude_camer
         "shadow_epsilon_relative": SHADOW_EPSILON_RELATIVE,
         "image_margin_px": IMAGE_MARGIN_PX,
         "mixed_pixels": {"depth_slack": MIXED_DEPTH_SLACK, "corner_offset_px": CORNER_OFFSET_PX,
-                         "raw_reach": "sensor period - 1"},
+                         "raw_reach": "sensor period - 1", "shadow_edges": True},
         "demosaicking": "residual",
     }
     text = json.dumps(inputs, sort_keys=True)
@@ -590,7 +603,7 @@ def _observe_view(surface, capture, record, pose, min_cosine, block_size, view_i
     camera, light = manifest.camera(record.camera), manifest.light(record.light)
     rig = rig_in_object_space(pose, camera, light)
     images = analyser_images(capture, record)
-    mixed = mixed_pixels(surface, camera, pose, min_cosine)
+    mixed = mixed_pixels(surface, camera, pose, min_cosine, rig["light_position"])
     if record.kind == "raw" and camera.layout is not None:
         # a demosaicked pixel interpolates its missing analyser angles from the samples less
         # than one sensor period away: a pure pixel that close to a mixed one holds its light.

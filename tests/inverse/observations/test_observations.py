@@ -226,8 +226,9 @@ def test_raw_capture_is_demosaicked_and_agrees_with_analyser(sphere_raw_capture_
     surface, manifest = obs._Surface(capture.load_mesh(), T), capture.manifest
     for view in range(4):
         camera = manifest.camera(raw.views[view]["camera"])
-        near_outline = binary_dilation(obs.mixed_pixels(surface, camera, np.eye(4), 0.1),
-                                       np.ones((3, 3), bool)).astype(np.float32)
+        light = manifest.light(raw.views[view]["light"])
+        mixed = obs.mixed_pixels(surface, camera, np.eye(4), 0.1, light.position)
+        near_outline = binary_dilation(mixed, np.ones((3, 3), bool)).astype(np.float32)
         rows = missing[everything.view[missing] == view]
         uv = camera.project(surface.position[np.searchsorted(surface.texel,
                                                              everything.texel[rows])])
@@ -422,7 +423,10 @@ def test_no_texel_view_samples_a_pixel_past_the_outline(sphere_store, sphere_cap
 
 
 class _Scene:
-    """What :func:`mixed_pixels` reads of a surface: a Mitsuba scene."""
+    """What :func:`mixed_pixels` reads of a surface: a Mitsuba scene, its shadow rays."""
+
+    epsilon_mm = 0.01
+    occluded = obs._Surface.occluded
 
     def __init__(self, *rectangles):
         mi.set_variant("llvm_ad_mono_polarized")
@@ -450,6 +454,22 @@ def test_mixed_pixels_are_the_outline_and_the_occluding_contour():
     mixed = obs.mixed_pixels(_Scene(card), camera, np.eye(4), 0.1)
     assert np.array_equal(np.flatnonzero(mixed.all(axis=0)), np.arange(32, 64))
     assert not mixed[:, :32].any()
+
+
+def test_a_shadow_edge_across_a_pixel_mixes_it():
+    camera = _pinhole()
+    wall = ((0.0, 0.0, 100.0), (500.0, 500.0, 1.0))
+    # the card's edge (x = -4.9 mm at 50 mm) projects to u = 21.7 (pixel 22); a light at
+    # x = -20 mm casts its shadow on the wall up to x = 10.2 mm, u = 41.7 (pixel 42)
+    card = ((-54.9, 0.0, 50.0), (50.0, 500.0, 1.0))
+    scene = _Scene(wall, card)
+    unlit = obs.mixed_pixels(scene, camera, np.eye(4), 0.1)
+    assert np.array_equal(np.flatnonzero(unlit.any(axis=0)), [22])
+    lit = obs.mixed_pixels(scene, camera, np.eye(4), 0.1, light_position=[-20.0, 0.0, 0.0])
+    assert np.array_equal(np.flatnonzero(lit.any(axis=0)), [22, 42]) and lit[:, 42].all()
+    # a light beside the camera on the other side puts the card's shadow behind the card
+    lit = obs.mixed_pixels(scene, camera, np.eye(4), 0.1, light_position=[20.0, 0.0, 0.0])
+    assert np.array_equal(np.flatnonzero(lit.any(axis=0)), [22])
 
 
 def test_a_steep_surface_is_not_a_contour():
