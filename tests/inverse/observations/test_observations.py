@@ -11,7 +11,6 @@ from scipy.ndimage import binary_dilation, map_coordinates
 import mitsuba as mi
 
 from polarbssrdf.inverse.observations import build as obs
-from polarbssrdf.io import load_capture
 from polarbssrdf.inverse.observations.build import (
     ObservationError,
     ObservationStore,
@@ -19,6 +18,7 @@ from polarbssrdf.inverse.observations.build import (
     load_or_build_observations,
     rig_in_object_space,
 )
+from polarbssrdf.io import load_capture
 
 T = 32
 
@@ -372,7 +372,7 @@ def test_nan_pixels_drop_only_their_texel_views(sphere_capture_dir, sphere_store
     assert all(s["nonfinite"] == 0 for s in store.attrs["statistics"][1:])
 
 
-# --------------------------------------------------------------------------- (f) mixed pixels
+# --------------------------------------------------------------------------- (g) mixed pixels
 def _pixel_corner_hits_sphere(camera, centre, radius, columns, rows):
     """Whether rays through pixel corners ``(columns, rows)`` hit the analytic sphere.
 
