@@ -2,8 +2,7 @@
 
 Each output pixel (sampled ``supersample`` x ``supersample`` times, then
 box-averaged) casts its ray through the camera model (distortion inverted
-iteratively by OpenCV: ``undistortPointsIter`` in 4.x, ``undistortPoints``
-with termination criteria in 5.x), intersects the board plane and
+iteratively, :meth:`Camera.normalized_rays`), intersects the board plane and
 looks the board image up bilinearly; optional Gaussian blur and noise
 imitate optics and sensor. Used by the tests and to check a calibration
 pipeline end to end.
@@ -61,26 +60,12 @@ _RAY_CACHE: dict = {}
 
 
 def _compute_pixel_rays(camera: Camera, supersample: int) -> np.ndarray:
-    cv2 = _cv2()
     width, height = camera.image_size
     offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
     u = (np.arange(width)[:, None] + offsets[None, :]).reshape(-1)
     v = (np.arange(height)[:, None] + offsets[None, :]).reshape(-1)
     uu, vv = np.meshgrid(u, v)
-    pixels = np.stack([uu, vv], axis=-1).reshape(-1, 1, 2)
-    if np.any(camera.dist != 0):
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
-        if hasattr(cv2, "undistortPointsIter"):   # OpenCV 4.x: the iterative variant takes criteria
-            rays = cv2.undistortPointsIter(pixels, camera.K, camera.dist, None, None, criteria)
-        else:                                     # OpenCV 5.x: undistortPoints takes them
-            rays = cv2.undistortPoints(pixels, camera.K, camera.dist, R=None, P=None, criteria=criteria)
-        rays = np.asarray(rays, dtype=np.float64).reshape(uu.shape + (2,))
-    else:
-        K = camera.K
-        y = (vv - K[1, 2]) / K[1, 1]
-        x = (uu - K[0, 2] - K[0, 1] * y) / K[0, 0]
-        rays = np.stack([x, y], axis=-1)
-    return rays
+    return camera.normalized_rays(uu, vv)
 
 
 def render_board_view(board: BoardSpec, camera: Camera, board_to_world, *, supersample: int = 2,

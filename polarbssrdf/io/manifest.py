@@ -360,6 +360,37 @@ class Camera:
         v = K[1, 1] * yd + K[1, 2]
         return np.stack([u, v], axis=-1)
 
+    def normalized_rays(self, u, v) -> np.ndarray:
+        """Inverse of :meth:`project`: the camera-frame ray ``(x, y, 1)`` of pixel ``(u, v)``.
+
+        Parameters
+        ----------
+        u, v:
+            Same-shape arrays of column and row (pixel centres at integers).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., 2)``: ``(x, y)`` on the plane ``z = 1``. Exact without
+            distortion; with it, OpenCV inverts the model iteratively (40
+            iterations or 1e-10), ``undistortPointsIter`` in 4.x and
+            ``undistortPoints`` with the criteria in 5.x.
+        """
+        u, v = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64))
+        K = self.K
+        if not np.any(self.dist != 0):
+            y = (v - K[1, 2]) / K[1, 1]
+            return np.stack([(u - K[0, 2] - K[0, 1] * y) / K[0, 0], y], axis=-1)
+        import cv2  # deferred: OpenCV's import is slow and only distorted cameras need it here
+
+        pixels = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+        if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x: the iterative variant takes criteria
+            rays = cv2.undistortPointsIter(pixels, K, self.dist, None, None, criteria)
+        else:  # OpenCV 5.x: undistortPoints takes them
+            rays = cv2.undistortPoints(pixels, K, self.dist, R=None, P=None, criteria=criteria)
+        return np.asarray(rays, dtype=np.float64).reshape(u.shape + (2,))
+
     # --- JSON
     def to_json(self) -> dict:
         return {"name": self.name, "K": _plain(self.K), "dist": _plain(self.dist),

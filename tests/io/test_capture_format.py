@@ -551,6 +551,20 @@ def test_project_matches_opencv():
     assert np.allclose(camera.project(points), expected[:, 0], atol=1e-9)
 
 
+@pytest.mark.parametrize("dist", [[0.0] * 5, [0.05, -0.1, 0.002, -0.001, 0.03]])
+def test_normalized_rays_invert_project(dist):
+    camera = _manifest().cameras[1]
+    camera = Camera(camera.name, camera.K, dist, camera.R, camera.t, camera.image_size,
+                    camera.sensor)
+    rng = np.random.default_rng(9)
+    pixels = rng.uniform(0, 1, size=(2, 7, 5)) * np.reshape(camera.image_size, (2, 1, 1))
+    rays = camera.normalized_rays(pixels[0], pixels[1])
+    assert rays.shape == (7, 5, 2)
+    in_camera = np.concatenate([rays, np.ones((7, 5, 1))], axis=-1) * 600.0
+    world = (in_camera - camera.t) @ camera.R  # X_world = R^T (X_cam - t)
+    np.testing.assert_allclose(camera.project(world), np.moveaxis(pixels, 0, -1), atol=1e-6)
+
+
 def test_image_metadata_names_the_record(written):
     directory, manifest, _, _ = written
     _, metadata = read_exr(directory / manifest.frames[1].images[1].path)

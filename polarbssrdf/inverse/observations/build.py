@@ -245,8 +245,8 @@ def pixel_corner_rays(camera, pose) -> tuple[np.ndarray, np.ndarray]:
 
     Pixel centres are at integers, so the ``(H + 1) x (W + 1)`` corners lie at
     half-integers from ``-0.5`` to ``W - 0.5`` (``H - 0.5``), moved by
-    :data:`CORNER_OFFSET_PX`. Lens distortion is inverted with OpenCV's
-    ``undistortPoints``.
+    :data:`CORNER_OFFSET_PX`. Lens distortion is inverted by
+    :meth:`Camera.normalized_rays`.
 
     Returns
     -------
@@ -255,13 +255,10 @@ def pixel_corner_rays(camera, pose) -> tuple[np.ndarray, np.ndarray]:
     directions : (H + 1, W + 1, 3) float64
         Unit directions in object space.
     """
-    import cv2  # deferred: OpenCV's import is slow and only observations need it here
-
     width, height = camera.image_size
     u, v = np.meshgrid(np.arange(width + 1) - 0.5 + CORNER_OFFSET_PX,
                        np.arange(height + 1) - 0.5 + CORNER_OFFSET_PX)
-    corners = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
-    normalized = cv2.undistortPoints(corners, camera.K, camera.dist).reshape(-1, 2)
+    normalized = camera.normalized_rays(u, v).reshape(-1, 2)
     camera_rays = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
     pose = np.asarray(pose, dtype=np.float64)
     # camera -> world is R^T, world -> object the pose rotation's transpose
