@@ -81,6 +81,26 @@ class BiophysicalConfig:
         (:func:`~polarbssrdf.inverse.biophysical.correlation.albedo_correlation_length`).
     prior_order : {1, 2}
         The Matérn fields' ``alpha``: 2 (default) is smooth at the texel scale.
+    feature_fraction, feature_spread : float
+        The spike and slab that frees the chromophore fields at local features (order 2;
+        :func:`~polarbssrdf.inverse.biophysical.prior.feature_coupling`): a texel whose
+        albedo departs from its surroundings, read as a departure of the maps, is a feature
+        with prior probability ``feature_fraction`` (default 0.01: 25 freckles of 3 mm
+        cover 0.5% of a face) that departs ``feature_spread`` (default 10) times as far as
+        the typical texel. Where a texel is one, its prior is loosened (its spread widened
+        ``feature_spread``-fold, its pairs cut), so a freckle keeps its melanin and a std
+        that says how little the data pin it, where a Gaussian field shrank it into the
+        skin around (issue 32, item 3). ``feature_fraction`` 0: the Gaussian field.
+    feature_maps : list of str
+        The chromophores a local feature frees (default all four: the bands alone cannot
+        tell which map a small spot is, so a freckle's melanin is only as certain as the
+        other maps there allow; ``["C_m"]`` frees melanin alone).
+    capture_blur_mm : float or None
+        Standard deviation (mm) of the capture's blur of the input maps, as one Gaussian
+        (:func:`~polarbssrdf.inverse.observations.footprint.capture_blur_variance_mm2`): the
+        prediction is blurred so and the std knows that detail finer than it is seen only
+        through the prior. ``None`` (default): ``reconstruct`` estimates it from the
+        capture's cameras; a Python call without it takes the input as sharp (0).
     nuisance_std : dict
         ``name -> std`` within a face of what the std marginalizes (:data:`NUISANCES`,
         :data:`DEFAULT_NUISANCE_STD`): the thickness (mm) and oxygenation about their face
@@ -132,6 +152,10 @@ class BiophysicalConfig:
     prior_mean: dict = dataclasses.field(default_factory=lambda: {n: list(v) for n, v in population_prior().items()})
     correlation_mm: float | str = "fit"
     prior_order: int = 2
+    feature_fraction: float = 0.01
+    feature_spread: float = 10.0
+    feature_maps: list = dataclasses.field(default_factory=lambda: list(PARAMETERS))
+    capture_blur_mm: float | None = None
     nuisance_std: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_NUISANCE_STD))
     nuisance_mean: dict = dataclasses.field(default_factory=lambda: {k: list(v) for k, v in DEFAULT_NUISANCE_MEAN.items()})
     noise: str = "fit"
@@ -183,6 +207,13 @@ class BiophysicalConfig:
         check_integer(self.prior_order, "prior_order", minimum=1)
         if self.prior_order > 2:
             raise ValueError(f"prior_order must be 1 or 2, got {self.prior_order!r}")
+        check_number(self.feature_fraction, "feature_fraction", minimum=0, maximum=0.5)
+        check_number(self.feature_spread, "feature_spread", minimum=1)
+        if not isinstance(self.feature_maps, (list, tuple)) or any(n not in PARAMETERS for n in self.feature_maps):
+            raise ValueError(f"feature_maps must be a list of {list(PARAMETERS)}, got {self.feature_maps!r}")
+        self.feature_maps = list(self.feature_maps)
+        if self.capture_blur_mm is not None:
+            check_number(self.capture_blur_mm, "capture_blur_mm", minimum=0)
         self._check_tables("prior_std", PARAMETERS, pairs=False)
         for name, value in self.prior_std.items():
             if not value > 0:

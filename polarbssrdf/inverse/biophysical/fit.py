@@ -7,8 +7,10 @@ texel with their posterior std, by one algorithm:
   a camera records, rendered through the bands' spectral quadrature and the texture-space
   layered blur synth renders with (:class:`~.model.BiophysicalModel`, eq. 40-47) at the
   face's epidermal thickness and oxygenation (``config.thickness_mm``, ``config.gamma``)
-  and the input index map; the bands' own and band-common noise; a Matérn prior on every
-  chromophore map around its face mean;
+  and the input index map, seen through the capture's blur (``config.capture_blur_mm``);
+  the bands' own and band-common noise; a Matérn prior on every chromophore map around its
+  face mean, freed at local features such as freckles (``config.feature_fraction``,
+  :func:`~.prior.feature_coupling`);
 * the start (:mod:`.start`): the per-texel inversion of eq. 47 on block means, and the
   face means from larger blocks (:func:`~.start.block_face_means`, their std with what the
   face's held thickness and oxygenation may move them, :func:`~.start.face_mean_skin_shifts`,
@@ -54,7 +56,7 @@ from polarbssrdf.inverse.biophysical.correlation import albedo_correlation_lengt
 from polarbssrdf.inverse.biophysical.gauss_newton import PriorTerms, gauss_newton
 from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel, jit_types
 from polarbssrdf.inverse.biophysical.oxygenation import face_oxygenation
-from polarbssrdf.inverse.biophysical.prior import SpatialPrior, noise_spectrum
+from polarbssrdf.inverse.biophysical.prior import SpatialPrior, capture_gain, feature_coupling, noise_spectrum
 from polarbssrdf.inverse.biophysical.problem import DataTerm, NuisanceSensitivity
 from polarbssrdf.inverse.biophysical.start import (
     albedo_stack,
@@ -314,8 +316,9 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     quadrature = spectral_quadrature(bands, config.spectral)
     model = BiophysicalModel(quadrature, atlas, eta, face["thickness_mm"], config.bounds, gamma=face["gamma"])
     noise_scale = texel_noise_scale(albedo_maps, bands, observed, good)
+    blur_variance = float(config.capture_blur_mm or 0.0) ** 2
     data = DataTerm(model, observed, good / noise_scale, np.full(len(bands), config.albedo_noise),
-                    config.common_noise)
+                    config.common_noise, blur_variance)
     length = {"correlation_mm": config.correlation_mm, "from": "config"}
     spatial = None
     if config.prior == "matern":
@@ -336,6 +339,15 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
         blocks = {n: (mean, float(np.hypot(std, shifts[n]))) for n, (mean, std) in blocks.items()}
         face["face_mean_skin_std"] = shifts
     hyper = face_mean_hyperprior(config, chromophores, blocks)
+    coupling = None
+    if spatial is not None and config.feature_fraction > 0 and chromophores:
+        # which map each albedo departure is, read through the start maps' Jacobian
+        jacobian = data.local_jacobian(maps, chromophores)[surface.ravel()]
+        relative = jacobian / np.maximum(observed.reshape(len(bands), -1)[:, surface.ravel()].T, 1e-4)[:, :, None]
+        weights, pairs = feature_coupling(observed, good, spatial, relative, config.feature_fraction,
+                                          config.feature_spread)
+        kept = np.array([n in config.feature_maps for n in chromophores])
+        coupling = (np.where(kept, weights, 1.0), np.where(kept, pairs, 1.0))
     # a mean from the blocks is fixed there (with its variance for the std); else the face
     # mean is fitted under the population hyperprior
     known = [hyper[n][1] if spatial is not None else 0.0 for n in chromophores]
@@ -343,7 +355,9 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
                        mean0=[hyper[n][0] for n in chromophores],
                        mean_variance=[0.0 if spatial is not None else hyper[n][1] for n in chromophores],
                        start=[hyper[n][0] for n in chromophores], adapt=[config.spread == "fit"] * len(chromophores),
-                       known_variance=known)
+                       known_variance=known,
+                       coupling=coupling,
+                       gain=None if spatial is None else capture_gain(spatial.area, blur_variance))
     movable = surface.ravel()  # the flat maps' unknowns, in the spatial prior's order
     texel = median_intensity_texel(observed, good)
     history = []
@@ -393,6 +407,10 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     residual = np.where(good, np.sqrt(np.mean((predicted - observed) ** 2, axis=0)), 0.0)
     out = {n: maps[n].astype(np.float32) for n in PARAMETERS}
     scale_quantiles = np.quantile(noise_scale[good], [0.1, 0.5, 0.9])
+    if prior.weights is not None:
+        # texels where a local feature freed a map's prior (weight below one half)
+        noise["freed_texels"] = {n: int(np.sum(prior.weights[:, i] < 0.5)) for i, n in enumerate(chromophores)}
+    noise["capture_blur_mm"] = float(config.capture_blur_mm or 0.0)
     noise.update(correlation_length=length, face=face, model=config.noise, std_noise=config.std_noise,
                  texel_noise_scale={"from": "input std" if np.any(noise_scale != 1.0) else "none",
                                     "q10": float(scale_quantiles[0]), "q50": float(scale_quantiles[1]),
@@ -433,7 +451,11 @@ def _uncertainty(data, prior, nuisances, maps, movable, good, held, held_std, co
                            mean0=list(prior.mu) + [0.0] * len(nuisances),
                            mean_variance=list(prior.mean_variance) + [v[1] for v in nuisances.values()],
                            start=list(prior.mu) + [0.0] * len(nuisances), adapt=[False] * (k + len(nuisances)),
-                           known_variance=list(prior.known_variance) + [0.0] * len(nuisances))
+                           known_variance=list(prior.known_variance) + [0.0] * len(nuisances),
+                           coupling=(None if prior.coupling is None else tuple(
+                               np.concatenate([c, np.ones((len(c), len(nuisances)))], axis=1)
+                               for c in prior.coupling)),
+                           gain=prior.gain)
     covariance, _, _, mean_covariance = posterior_blocks(data, joint, maps, movable, spectrum,
                                                          held=len(joint.names) - len(chromophores))
     std = {}

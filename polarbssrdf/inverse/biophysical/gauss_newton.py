@@ -72,9 +72,27 @@ class PriorTerms:
         curvature moved the face means of the maps the bands tell poorly along the
         prior's nearly free constant mode (beta_m by +0.02, 2.7x the constant map's error,
         over two rounds on a forehead II face at 1% noise).
+    coupling : ((n, k), (n_pairs, k)), optional
+        Each texel's innovation weight and each neighbour pair's coupling, in [0, 1], for
+        each map (:func:`~polarbssrdf.inverse.biophysical.prior.feature_coupling`,
+        :meth:`~.prior.SpatialPrior.coupled_unit`, order 2); the posterior reads each
+        texel's spread ``tau^2 / w`` and correlation length per map from them
+        (:meth:`local_tau2`, :attr:`correlation`). None: the Gaussian field.
+    gain : (bins, n), optional
+        The capture's blur of the data over the prior's spectrum
+        (:func:`~polarbssrdf.inverse.biophysical.prior.capture_gain`), for the posterior
+        expectations.
+
+    Attributes
+    ----------
+    units : list of (n, n) sparse
+        Each map's unit precision (``Q = unit / tau^2``).
+    correlation : float or (n, k)
+        The correlation length (mm) the posterior formulas take at each texel for each map.
     """
 
-    def __init__(self, names, spatial, std, mean0, mean_variance, start, adapt, known_variance=None):
+    def __init__(self, names, spatial, std, mean0, mean_variance, start, adapt, known_variance=None,
+                 coupling=None, gain=None):
         self.names = list(names)
         self.spatial = spatial
         self.std = np.asarray(std, np.float64).copy()
@@ -88,9 +106,17 @@ class PriorTerms:
         self.tau2 = (np.array([spatial.tau2(s) for s in self.std]) if spatial is not None
                      else np.full(k, np.inf))
         self.level_precision = np.zeros(k)
+        self.coupling, self.gain, self.weights = coupling, gain, None
         if spatial is not None:
-            self.ones_response = spatial.unit @ np.ones(len(spatial.index))  # Q 1 tau^2
-            self.ones_energy = float(self.ones_response.sum())  # 1^T Q 1 tau^2
+            if coupling is None:
+                self.units, self.correlation = [spatial.unit] * k, spatial.correlation_mm
+            else:
+                self.weights, pairs = (np.asarray(c, np.float64) for c in coupling)
+                self.units = [spatial.coupled_unit(pairs[:, i], self.weights[:, i]) for i in range(k)]
+                self.correlation = spatial.correlation_mm * np.sqrt(spatial.texel_couplings(pairs))
+            ones = np.ones(len(spatial.index))
+            self.ones_response = np.stack([unit @ ones for unit in self.units], axis=-1)  # (n, k): Q 1 tau^2
+            self.ones_energy = self.ones_response.sum(axis=0)  # (k,): 1^T Q 1 tau^2
             self.level_weights = spatial.area / spatial.area.sum()
             known = self.known_variance > 0
             self.level_precision[known] = 1.0 / (LEVEL_STD_FRACTION ** 2 * self.known_variance[known])
@@ -100,7 +126,7 @@ class PriorTerms:
         if self.spatial is None:
             return 0.0, np.zeros_like(X), np.zeros_like(mu)
         deviation = X - mu[None, :]
-        gradient = (self.spatial.unit @ deviation) / self.tau2[None, :]
+        gradient = self.apply_unit(deviation) / self.tau2[None, :]
         value = 0.5 * float(np.sum(deviation * gradient))
         mean_gradient = -gradient.sum(axis=0)
         level = self.level_weights @ deviation  # (k,) the maps' mean deviation
@@ -111,6 +137,20 @@ class PriorTerms:
         mean_gradient[free] += (mu[free] - self.mean0[free]) / self.mean_variance[free]
         mean_gradient[~free] = 0.0
         return value, gradient, mean_gradient
+
+    def local_tau2(self):
+        """``tau^2`` (k,), or per texel ``tau^2 / w`` (n, k) where features free the prior."""
+        return self.tau2 if self.weights is None else self.tau2[None, :] / self.weights
+
+    def apply_unit(self, X):
+        """(n, k) each map's unit precision times its column of ``X``."""
+        if all(unit is self.units[0] for unit in self.units):  # one matrix for every map
+            return self.units[0] @ X
+        return np.stack([unit @ X[:, i] for i, unit in enumerate(self.units)], axis=-1)
+
+    def unit_diagonal(self):
+        """(n, k) the diagonals of the maps' unit precisions."""
+        return np.stack([unit.diagonal() for unit in self.units], axis=-1)
 
     def shift_mean(self, name, offset):
         """Re-centre map ``name``: its face mean and hyperprior move by ``-offset`` (the caller
@@ -126,13 +166,16 @@ class PriorTerms:
         if self.spatial is None:
             return 0.0
         spatial = self.spatial
-        energy = expected_prior_energy(C, spatial.area, self.tau2, spatial.correlation_mm, spatial.order)
+        energy = expected_prior_energy(C, spatial.area, self.local_tau2(), self.correlation, spatial.order,
+                                       self.gain)
+        if self.weights is not None:  # the share of the weighted quadratic form
+            energy = energy * self.weights
         change = 0.0
         for i, name in enumerate(self.names):
             if not self.adapt[i]:
                 continue
             deviation = np.ravel(maps[name])[movable] - self.mu[i]
-            tau2, std = updated_spread(deviation, spatial.unit, energy[:, i], self.tau2[i], self.std[i])
+            tau2, std = updated_spread(deviation, self.units[i], energy[:, i], self.tau2[i], self.std[i])
             change = max(change, abs(np.log(std / self.std[i])))
             self.tau2[i], self.std[i] = tau2, std
         return change
@@ -166,12 +209,11 @@ def solve_step(blocks, prior, rhs_x, rhs_mu, damping, fixed=None, max_iterations
         predicted = float(np.sum(rhs_x * x) - 0.5 * np.einsum("ni,nij,nj->", x, blocks, x))
         return x, np.zeros(k), predicted
     inverse_tau2 = 1.0 / prior.tau2
-    unit = prior.spatial.unit
     q1 = prior.ones_response
     free = prior.free
     safe_variance = np.where(free, prior.mean_variance, 1.0)
     mean_diagonal = np.where(free, prior.ones_energy * inverse_tau2 + 1.0 / safe_variance, 1.0)
-    prior_diagonal = unit.diagonal()[:, None] * inverse_tau2[None, :]
+    prior_diagonal = prior.unit_diagonal() * inverse_tau2[None, :]
     diagonal = np.einsum("nii->ni", blocks) + prior_diagonal
     damped_blocks = blocks + damping * (diagonal[:, :, None] * eye + 1e-12 * eye)
     mean_damped = mean_diagonal * (1.0 + damping)
@@ -184,11 +226,11 @@ def solve_step(blocks, prior, rhs_x, rhs_mu, damping, fixed=None, max_iterations
         pinned = x * (1.0 - keep)
         x = x * keep
         mu = np.where(free, mu, 0.0)
-        y = (np.einsum("nij,nj->ni", damped_blocks, x) + (unit @ x) * inverse_tau2[None, :]
-             - q1[:, None] * (mu * inverse_tau2)[None, :]
+        y = (np.einsum("nij,nj->ni", damped_blocks, x) + prior.apply_unit(x) * inverse_tau2[None, :]
+             - q1 * (mu * inverse_tau2)[None, :]
              + prior.level_weights[:, None] * (prior.level_precision * (prior.level_weights @ x))[None, :])
         y = y * keep + pinned
-        y_mu = np.where(free, -(q1 @ x) * inverse_tau2 + mean_damped * mu, z[n * k:])
+        y_mu = np.where(free, -np.sum(q1 * x, axis=0) * inverse_tau2 + mean_damped * mu, z[n * k:])
         return np.concatenate([y.ravel(), y_mu])
 
     def precondition(z):

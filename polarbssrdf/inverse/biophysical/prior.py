@@ -37,7 +37,9 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import fft, sparse
+from scipy.stats import chi2
 
+from polarbssrdf._arrays import masked_low_pass
 from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD
 
 DEFAULT_CORRELATION_MM = 5.0
@@ -116,6 +118,9 @@ class SpatialPrior:
         Texel areas (mm^2).
     unit : (n, n) sparse
         ``W A`` (order 1) or ``A^T W A`` (order 2); divide by ``tau^2`` for a map's precision.
+    pairs : tuple
+        ``(first, second, weight)`` of the neighbouring texels (positions among the unknowns)
+        and their Laplacian weight (:func:`neighbour_pairs`).
     """
 
     def __init__(self, surface, texel_size_mm, correlation_mm=DEFAULT_CORRELATION_MM, order=2):
@@ -135,17 +140,45 @@ class SpatialPrior:
         position = np.full(surface.size, -1)
         position[self.index] = np.arange(n)
         first, second, weight = neighbour_pairs(surface, texel_size_mm)
-        a, b = position[first], position[second]
+        self.pairs = (position[first], position[second], weight)
+        self.unit = self.coupled_unit(np.ones(len(weight)))
+
+    def coupled_unit(self, coupling, weights=None):
+        """The unit precision with each neighbour pair's Laplacian weight times ``coupling``
+        (n_pairs,) in [0, 1]: 1 everywhere gives :attr:`unit`, 0 cuts the pair (a line
+        process: the field may jump there). ``weights`` (n,), order 2: each texel's innovation
+        precision, ``A^T W diag(weights) A`` (a scale mixture: a texel of weight ``w`` may
+        depart by ``1 / sqrt(w)`` times the field's spread)."""
+        a, b, weight = self.pairs
+        n = len(self.index)
+        weight = weight * np.asarray(coupling, np.float64)
         degree = np.bincount(a, weights=weight, minlength=n) + np.bincount(b, weights=weight, minlength=n)
         off = sparse.coo_matrix((-weight, (a, b)), shape=(n, n))
         laplacian = (off + off.T + sparse.diags(degree)).tocsr()
         l2 = self.correlation_mm ** 2
         if self.order == 1:
-            self.unit = (sparse.diags(self.area) + l2 * laplacian).tocsr()
-        else:
-            inverse_area = sparse.diags(1.0 / self.area)
-            self.unit = (sparse.diags(self.area) + 2.0 * l2 * laplacian
-                         + l2 * l2 * (laplacian @ inverse_area @ laplacian)).tocsr()
+            return (sparse.diags(self.area) + l2 * laplacian).tocsr()
+        if weights is not None:
+            operator = sparse.identity(n) + l2 * sparse.diags(1.0 / self.area) @ laplacian
+            return (operator.T @ sparse.diags(self.area * np.asarray(weights, np.float64)) @ operator).tocsr()
+        inverse_area = sparse.diags(1.0 / self.area)
+        return (sparse.diags(self.area) + 2.0 * l2 * laplacian
+                + l2 * l2 * (laplacian @ inverse_area @ laplacian)).tocsr()
+
+    def texel_coupling(self, coupling):
+        """(n,) the mean ``coupling`` of each texel's pairs, weighted as the Laplacian weighs them
+        (1 for a texel without pairs): its correlation length is ``l sqrt(mean)`` as far as the
+        posterior's local stationarity goes (:func:`posterior_covariance`)."""
+        a, b, weight = self.pairs
+        n = len(self.index)
+        total = np.bincount(a, weights=weight, minlength=n) + np.bincount(b, weights=weight, minlength=n)
+        coupled = weight * np.asarray(coupling, np.float64)
+        kept = np.bincount(a, weights=coupled, minlength=n) + np.bincount(b, weights=coupled, minlength=n)
+        return np.where(total > 0, kept / np.maximum(total, 1e-30), 1.0)
+
+    def texel_couplings(self, couplings):
+        """(n, k) :meth:`texel_coupling` of each column of ``couplings`` (n_pairs, k)."""
+        return np.stack([self.texel_coupling(c) for c in np.asarray(couplings).T], axis=-1)
 
     def tau2(self, std):
         """``tau^2`` of a map whose marginal spread is ``std`` (:func:`precision_scale`)."""
@@ -155,6 +188,80 @@ class SpatialPrior:
         """``1/2 d^T Q d`` and its gradient ``Q d`` for a deviation ``d`` (n,) from the mean."""
         gradient = (self.unit @ deviation) / tau2
         return 0.5 * float(deviation @ gradient), gradient
+
+
+FEATURE_SCALE_TEXELS = 1.5
+"""Gaussian sigma (texels) of the surroundings a texel's albedo is compared with to find a
+local feature (:func:`feature_coupling`): a feature is a few texels across, the finest
+detail a map holds."""
+
+
+def feature_probability(squared, dimensions, fraction, spread):
+    """Posterior probability that a texel is a local feature, given its standardized departure.
+
+    Spike and slab (George and McCulloch, J. Am. Stat. Assoc. 88, 1993): a texel is a feature
+    with prior probability ``fraction``, and then departs in each of ``dimensions``
+    standardized coordinates with ``spread`` times the typical texel's standard deviation;
+    else with 1. ``squared`` is the departure's squared length. The likelihood ratio is
+    ``spread^-d exp(m / 2 (1 - 1 / spread^2))``."""
+    squared = np.asarray(squared, np.float64)
+    log_ratio = (-float(dimensions) * np.log(spread) + 0.5 * squared * (1.0 - 1.0 / spread ** 2)
+                 + np.log(fraction) - np.log1p(-fraction))
+    return 1.0 / (1.0 + np.exp(-np.clip(log_ratio, -700.0, 700.0)))
+
+
+def feature_coupling(albedo, good, spatial, jacobian, fraction, spread, scale_texels=FEATURE_SCALE_TEXELS):
+    """``(weights (n, k), coupling (n_pairs, k))`` of each texel and neighbour pair of
+    ``spatial`` for each of k maps (:meth:`SpatialPrior.coupled_unit`): a local feature frees
+    the prior of the maps there, around and inside it.
+
+    A freckle or a mole is a few texels whose melanin differs from the skin around by far
+    more than the skin's smooth variation: a Gaussian field shrinks it into its surroundings
+    and its std does not say so (issue 32, item 3). Per texel, the albedo's departure from
+    its surroundings, ``d_b = ln a_b - G * ln a_b`` (``G`` a Gaussian of ``scale_texels``
+    over the ``good`` texels), is projected on what the maps can make, the span of the
+    texel's relative Jacobian ``J`` (``d ln a_b / d x_m``): its squared length there, ``m = d^T
+    J (J^T J)^-1 J^T d``, is ``sigma^2 chi^2_k`` for noise alone, and is set against the
+    typical texel's (its median over the ``good`` texels over chi^2_k's). The probability
+    ``p`` that the texel is a feature (:func:`feature_probability`, k coordinates) frees
+    every map there: the bands cannot tell which map a small spot is. The texel's weight,
+    its innovation's precision, is the spike and slab's expected precision ``1 - p + p /
+    spread^2``: a feature may depart from the field by ``spread`` times its spread, a texel
+    that is not one keeps the Gaussian field. A pair's coupling is the smaller weight of its
+    texels (a cut pair is Geman and Geman's line process, IEEE PAMI 6, 1984): the departure
+    may be sharp. Texels outside ``good`` weigh 1.
+
+    Parameters
+    ----------
+    albedo : (B, T, T)
+        The input albedo per band (> 0).
+    good : (T, T) bool
+        Texels whose albedo enters the data term.
+    spatial : SpatialPrior
+    jacobian : (n, B, k)
+        ``d ln a_b / d x_m`` at each of ``spatial``'s texels.
+    fraction, spread : float
+        The spike and slab's prior share of feature texels and their departure's spread.
+    scale_texels : float
+    """
+    jacobian = np.asarray(jacobian, np.float64)
+    k = jacobian.shape[-1]
+    log_albedo = np.log(np.maximum(np.asarray(albedo, np.float64), 1e-6))
+    departure = np.stack([(band - masked_low_pass(band, good, scale_texels)).ravel()[spatial.index]
+                          for band in log_albedo], axis=-1)  # (n, B)
+    usable = np.ravel(good)[spatial.index]
+    if not usable.any():
+        return np.ones((len(spatial.index), k)), np.ones((len(spatial.pairs[0]), k))
+    normal = np.einsum("nbi,nbj->nij", jacobian, jacobian)
+    normal += 1e-9 * np.einsum("nii->n", normal)[:, None, None] / k * np.eye(k)
+    projected = np.einsum("nbi,nb->ni", jacobian, departure)
+    squared = np.einsum("ni,ni->n", projected, np.linalg.solve(normal, projected[..., None])[..., 0])
+    # the typical texel's: noise alone makes the squared length sigma^2 chi^2_k
+    typical = max(float(np.median(squared[usable])) / chi2.ppf(0.5, k), 1e-30)
+    probability = np.where(usable, feature_probability(squared / typical, k, fraction, spread), 0.0)
+    weight = np.repeat((1.0 - probability + probability / spread ** 2)[:, None], k, axis=1)
+    a, b, _ = spatial.pairs
+    return weight, np.minimum(weight[a], weight[b])
 
 
 _ZONE = {}
@@ -242,7 +349,22 @@ def noise_spectrum(correlation, bins=SPECTRUM_BINS, grid=1024):
     return _bin_average(np.maximum(cosines @ rho @ cosines.T, 0.0).ravel(), bins, grid)
 
 
-def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1, spectrum=None):
+def capture_gain(area_mm2, blur_variance_mm2):
+    """``|K(lambda)|^2`` (bins, n) of the capture's Gaussian blur over the lattice spectrum's nodes,
+    or None without a blur.
+
+    A Gaussian of variance ``v`` (mm^2) has the symbol ``exp(-v omega^2 / 2)``; on texels of
+    area ``a`` the lattice's ``lambda`` is ``omega^2 a`` to second order, so the data's power
+    at ``lambda`` is scaled by ``exp(-v lambda / a)``
+    (:func:`~polarbssrdf.inverse.observations.footprint.capture_blur_variance_mm2`)."""
+    if not blur_variance_mm2:
+        return None
+    lam, _ = lattice_spectrum()
+    area = np.asarray(area_mm2, np.float64)[None, :]
+    return np.exp(-float(blur_variance_mm2) * lam[:, None] / area)
+
+
+def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1, spectrum=None, gain=None):
     """Per-texel posterior covariance ``(n, k, k)`` of k Matérn maps given local data precision.
 
     Parameters
@@ -253,9 +375,16 @@ def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1
         Texel areas.
     tau2 : (k,)
         The maps' ``tau^2`` (:func:`precision_scale`), finite.
-    correlation_mm : float
+    correlation_mm : float or (n, k)
+        Per texel and map for priors freed at features (:func:`feature_coupling`): the
+        texel's own, as if it held everywhere (local stationarity, a stated approximation);
+        then solved per frequency (:func:`_local_posterior`), where ``tau2`` may be per
+        texel too, (n, k).
     order : {1, 2}
         The prior's order (:class:`SpatialPrior`).
+    gain : (bins, n), optional
+        :func:`capture_gain`: the data seen through the capture's blur, ``|K|^2 C`` per
+        frequency (a detail finer than the blur is told by the prior alone).
 
     Returns the zone average of ``(C + diag(area (1 + l^2 lambda / area)^order / tau^2))^-1``
     over the lattice spectrum (:func:`lattice_spectrum`): exact for a field on
@@ -270,21 +399,25 @@ def posterior_covariance(data_precision, area_mm2, tau2, correlation_mm, order=1
     ``(C + Q)^-1``).
     """
 
+    if np.ndim(correlation_mm) == 2:
+        return _local_posterior(data_precision, 0, area_mm2, tau2, correlation_mm, order, spectrum, gain)[0]
     values, vectors, scale = _whitened_eigen(data_precision, tau2)
     unit = _unit_symbol(area_mm2, correlation_mm, order)  # (bins, n)
     lam, weight = lattice_spectrum()
+    seen = values[None] * (1.0 if gain is None else gain[:, :, None])  # (bins, n, k)
     # (C + u diag(1/tau2))^-1 = S V diag(1 / (values + u)) V^T S with S = diag(tau)
-    denominator = values[None] + unit[:, :, None]
+    denominator = seen + unit[:, :, None]
     if spectrum is None:
         inverse_sum = np.einsum("j,jnk->nk", weight, 1.0 / denominator)
     else:
         s = np.asarray(spectrum, np.float64)[:, None, None]
-        inverse_sum = np.einsum("j,jnk->nk", weight, (s * values[None] + unit[:, :, None]) / denominator ** 2)
+        inverse_sum = np.einsum("j,jnk->nk", weight, (s * seen + unit[:, :, None]) / denominator ** 2)
     covariance = np.einsum("nik,nk,njk->nij", vectors, inverse_sum, vectors)
     return covariance * scale[None, :, None] * scale[None, None, :]
 
 
-def held_map_error_covariance(data_precision, held, area_mm2, tau2, correlation_mm, order=1, spectrum=None):
+def held_map_error_covariance(data_precision, held, area_mm2, tau2, correlation_mm, order=1, spectrum=None,
+                              gain=None):
     """Per-texel covariance ``(n, k, k)`` of the error of the first ``k`` maps' posterior mode when
     the last ``held`` maps are not estimated but held at their prior mean.
 
@@ -304,14 +437,16 @@ def held_map_error_covariance(data_precision, held, area_mm2, tau2, correlation_
         The Gauss-Newton normal matrix per texel over the fitted and then the held maps.
     held : int
         How many trailing maps are held.
-    area_mm2, tau2, correlation_mm, order, spectrum :
+    area_mm2, tau2, correlation_mm, order, spectrum, gain :
         As :func:`posterior_covariance`; ``tau2`` has one entry per map, held ones included.
     """
 
     C = np.asarray(data_precision, np.float64)
     tau2 = np.asarray(tau2, np.float64)
+    if np.ndim(correlation_mm) == 2:
+        return _local_posterior(C, held, area_mm2, tau2, correlation_mm, order, spectrum, gain)[0]
     k = C.shape[-1] - int(held)
-    covariance = posterior_covariance(C[:, :k, :k], area_mm2, tau2[:k], correlation_mm, order, spectrum)
+    covariance = posterior_covariance(C[:, :k, :k], area_mm2, tau2[:k], correlation_mm, order, spectrum, gain)
     if held <= 0:
         return covariance
     values, vectors, scale = _whitened_eigen(C[:, :k, :k], tau2[:k])
@@ -323,10 +458,46 @@ def held_map_error_covariance(data_precision, held, area_mm2, tau2, correlation_
     factor = np.zeros_like(outer)
     for j in range(unit.shape[0]):  # one bin at a time: (n, k, k) memory, not (bins, n, k, k)
         u = unit[j][:, None]
-        inverse = 1.0 / (values + u)
-        factor += (weight[j] / u[:, :, None]) * inverse[:, :, None] * inverse[:, None, :]
+        g = np.ones_like(u) if gain is None else gain[j][:, None]
+        inverse = 1.0 / (g * values + u)
+        # the held maps' coupling reaches the data through the blur as the fitted maps do
+        factor += (weight[j] * g[:, :, None] ** 2 / u[:, :, None]) * inverse[:, :, None] * inverse[:, None, :]
     extra = np.einsum("nia,nab,njb->nij", vectors, outer * factor, vectors)
     return covariance + extra * scale[None, :, None] * scale[None, None, :]
+
+
+def _local_posterior(data_precision, held, area_mm2, tau2, correlation_mm, order, spectrum, gain):
+    """``(covariance (n, f, f), prior energy share (n, f))`` of :func:`held_map_error_covariance`
+    and :func:`expected_prior_energy` for maps of their own correlation length and spread per
+    texel (``correlation_mm`` (n, k), ``tau2`` (k,) or (n, k)), by a k x k solve per texel and
+    frequency (the eigenbasis those functions share holds only for one symbol for every
+    map); ``f = k - held``."""
+    C = np.asarray(data_precision, np.float64)
+    n, k, _ = C.shape
+    f = k - int(held)
+    tau2 = np.broadcast_to(np.asarray(tau2, np.float64), (n, k))
+    area = np.asarray(area_mm2, np.float64)[:, None]
+    l2 = np.asarray(correlation_mm, np.float64) ** 2
+    lam, weight = lattice_spectrum()
+    covariance = np.zeros((n, f, f))
+    share = np.zeros((n, f))
+    eye = np.eye(f)
+    for j, value in enumerate(lam):  # one frequency at a time: (n, k, k) memory
+        u = area * (1.0 + l2 * value / area) ** order
+        g = 1.0 if gain is None else gain[j][:, None, None]
+        prior = (u[:, :f] / tau2[:, :f])[:, :, None] * eye
+        inverse = np.linalg.inv(g * C[:, :f, :f] + prior)
+        if spectrum is None:
+            term = inverse
+        else:
+            term = inverse @ (spectrum[j] * g * C[:, :f, :f] + prior) @ inverse
+        if held:
+            coupling = g * C[:, :f, f:]
+            held_variance = tau2[:, f:] / u[:, f:]
+            term = term + inverse @ np.einsum("nah,nh,nbh->nab", coupling, held_variance, coupling) @ inverse
+        covariance += weight[j] * term
+        share += weight[j] * u[:, :f] * np.einsum("nii->ni", inverse)
+    return covariance, share
 
 
 def _unit_symbol(area_mm2, correlation_mm, order):
@@ -351,20 +522,23 @@ def _whitened_eigen(data_precision, tau2):
     return np.maximum(values, 0.0), vectors, scale
 
 
-def expected_prior_energy(data_precision, area_mm2, tau2, correlation_mm, order=1):
+def expected_prior_energy(data_precision, area_mm2, tau2, correlation_mm, order=1, gain=None):
     """Per texel and map ``(n, k)``: the posterior expectation of a deviation's share of
     ``d^T U d`` (``U`` the unit precision, ``Q = U / tau^2``) beyond its posterior mean's.
 
     The zone average of ``u(lambda) [(C + diag(u(lambda) / tau^2))^-1]_mm`` with
     ``u = area (1 + l^2 lambda / area)^order``: summed over texels, the trace
     ``tr(U Sigma)`` of the expectation-maximization update of ``tau^2``
-    (:func:`updated_spread`)."""
+    (:func:`updated_spread`). ``correlation_mm`` and ``gain`` as :func:`posterior_covariance`."""
 
+    if np.ndim(correlation_mm) == 2:
+        return _local_posterior(data_precision, 0, area_mm2, tau2, correlation_mm, order, None, gain)[1]
     values, vectors, scale = _whitened_eigen(data_precision, tau2)
     unit = _unit_symbol(area_mm2, correlation_mm, order)
     _, weight = lattice_spectrum()
+    seen = values[None] * (1.0 if gain is None else gain[:, :, None])
     # u [S V diag(1 / (values + u)) V^T S]_mm = u tau2_m sum_k V_mk^2 / (values_k + u)
-    share = np.einsum("j,jn,jnk->nk", weight, unit, 1.0 / (values[None] + unit[:, :, None]))
+    share = np.einsum("j,jn,jnk->nk", weight, unit, 1.0 / (seen + unit[:, :, None]))
     return np.einsum("nmk,nk->nm", vectors ** 2, share) * scale[None, :] ** 2
 
 

@@ -16,6 +16,10 @@ and small (0.01 mm, 0.02, 0.015 within a face), so the second-order terms stay
 below 0.1% of the albedo; the fit re-centres the index and re-linearizes between
 rounds.
 
+The prediction is then blurred as the capture blurs the maps fitted from it
+(``blur_variance_mm2``; issue 32, item 3): a freckle finer than the pixels reaches the input
+flattened, and a prediction compared sharp would explain the flattening by less melanin.
+
 The data term is ``1/2 sum_i r_i^T S^-1 r_i / q_i^2`` over texels of the relative residuals
 ``r_b = (A_b - a_b) / a_b`` with covariance ``q_i^2 S``, ``S = diag(sigma^2) + common^2 1 1^T``
 (:meth:`DataTerm.set_noise`) and ``q_i`` the texel's noise relative to the face's typical
@@ -33,6 +37,7 @@ from polarbssrdf._arrays import to_jit
 from polarbssrdf.inverse.biophysical.config import NUISANCES
 from polarbssrdf.inverse.biophysical.model import PARAMETERS, jit_types
 from polarbssrdf.render.subsurface import subsurface_exit_fraction
+from polarbssrdf.render.texture_diffusion import blur_sum_of_gaussians
 from polarbssrdf.skin.quadrature import quadrature_reflectance
 
 NUISANCE_STEPS = {"thickness_mm": 1e-3, "gamma": 1e-3, "eta": 1e-3}
@@ -99,11 +104,16 @@ class DataTerm:
         ``S`` (1 for the face's typical texel; :func:`~.fit.texel_noise_scale`), 0 where it
         does not (flagged).
     sigma, common : the starts of the noise (:meth:`set_noise`).
+    blur_variance_mm2 : float
+        The capture's blur of the input maps as one Gaussian (mm^2,
+        :func:`~polarbssrdf.inverse.observations.footprint.capture_blur_variance_mm2`): the
+        prediction is blurred so before it meets the input; 0: the input is sharp.
     """
 
-    def __init__(self, model, observed, weight, sigma, common):
+    def __init__(self, model, observed, weight, sigma, common, blur_variance_mm2=0.0):
         Float, _, _ = jit_types()
         self.model = model
+        self.blur_variance_mm2 = float(blur_variance_mm2)
         self.observed_numpy = observed
         self.weight = weight
         self.observed = [to_jit(Float, observed[b].ravel(), np.float32) for b in range(len(model.bands))]
@@ -150,12 +160,19 @@ class DataTerm:
         return None if factor is None else 1.0 + factor
 
     def predict(self, params):
-        """Per band, the predicted albedo ``A_b`` (flat Float) of the maps in ``params``."""
+        """Per band, the predicted albedo ``A_b`` (flat Float) of the maps in ``params``, seen
+        through the capture's blur."""
+        _, _, TensorXf = jit_types()
         values = self.model.render_bands(params)
+        atlas = self.model.atlas
         out = []
         for b, value in enumerate(values):
             factor = self.nuisance_factor(params, b)
-            out.append(value if factor is None else value * factor)
+            value = value if factor is None else value * factor
+            if self.blur_variance_mm2 > 0:
+                value = blur_sum_of_gaussians(TensorXf(value, self.model.shape), (1.0,), (self.blur_variance_mm2,),
+                                              atlas.texel_size_mm, atlas.valid).array
+            out.append(value)
         return out
 
     def __call__(self, params, predicted=None):

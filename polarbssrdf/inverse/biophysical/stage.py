@@ -26,6 +26,7 @@ parallel; a frame whose file exists is skipped on resume.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -41,6 +42,7 @@ from polarbssrdf.inverse.biophysical.config import bio_config
 from polarbssrdf.inverse.biophysical.fit import fit_biophysical
 from polarbssrdf.inverse.biophysical.model import PARAMETERS
 from polarbssrdf.inverse.frames import run_frames
+from polarbssrdf.inverse.observations.footprint import capture_blur_variance_mm2
 from polarbssrdf.inverse.results.directory import (
     read_result,
     read_stage_maps,
@@ -212,9 +214,14 @@ def write_frame(capture, outdir, frame, source, texture_size, settings, referenc
     config, free_melanin = bio_config(settings)
     bands = list(capture.manifest.bands)
     inputs = albedo_inputs(read_stage_maps(outdir, source, frame), bands)
+    atlas = _atlas(capture, texture_size)
+    if config.capture_blur_mm is None:
+        # every polarization camera of the frame, a held-out one too: the median footprint
+        # over the face barely moves with one camera more
+        variance, _ = capture_blur_variance_mm2(capture, atlas, frame)
+        config = dataclasses.replace(config, capture_blur_mm=float(np.sqrt(variance)))
     try:
-        result = fit_frame(inputs, bands, _atlas(capture, texture_size), config, reference,
-                           free_melanin, progress)
+        result = fit_frame(inputs, bands, atlas, config, reference, free_melanin, progress)
     except ValueError as error:
         raise ValueError(f"bio, frame {frame} ({source} maps): {error}") from None
     channels = result.channels()
@@ -223,7 +230,7 @@ def write_frame(capture, outdir, frame, source, texture_size, settings, referenc
     write_exr(path, channels, overwrite=True,
               metadata={"stage": STAGE, "frame": int(frame), "source_stage": source,
                         "history": result.history, "seconds": round(result.seconds, 3),
-                        "noise": result.noise,
+                        "noise": result.noise, "capture_blur_mm": round(config.capture_blur_mm, 4),
                         "held": [] if reference is None or free_melanin else ["C_m", "beta_m"]})
     write_bio_previews(channels, Path(outdir) / STAGE / "previews", frame)
     return channels

@@ -31,7 +31,9 @@ def posterior_blocks(data, prior, maps, movable, spectrum=None, held=0):
     with a noise ``spectrum``) plus what the free face means add
     (:func:`~polarbssrdf.inverse.biophysical.prior.mean_mode_covariance`). Without a spatial
     prior, the data term's own pseudo-inverse per texel (a direction the bands do not see
-    has no finite spread; the caller clips it to the map's range).
+    has no finite spread; the caller clips it to the map's range). A texel where a feature frees
+    the prior (:attr:`~.gauss_newton.PriorTerms.coupling`) takes its own spread and correlation
+    length, the capture's blur enters through ``prior.gain``.
 
     ``held`` > 0: the last ``held`` of ``prior.names`` are maps the fit did not estimate (held
     at their face values); the covariance is then that of the other maps' error
@@ -45,8 +47,8 @@ def posterior_blocks(data, prior, maps, movable, spectrum=None, held=0):
         return np.linalg.pinv(C, hermitian=True), C, J, np.zeros((k, k))
     area = prior.spatial.area
     fitted = k - int(held)
-    covariance = held_map_error_covariance(C, held, area, prior.tau2, prior.spatial.correlation_mm,
-                                           prior.spatial.order, spectrum=spectrum)
+    covariance = held_map_error_covariance(C, held, area, prior.local_tau2(), prior.correlation,
+                                           prior.spatial.order, spectrum=spectrum, gain=prior.gain)
     extra, mean_covariance = mean_mode_covariance(C, area, prior.tau2, np.where(prior.free, prior.mean_variance, 0.0))
     if np.any(prior.known_variance > 0):  # face means estimated before the fit
         extra = extra + known_mean_covariance(C, area, prior.tau2, prior.known_variance)

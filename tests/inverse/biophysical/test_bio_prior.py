@@ -281,3 +281,59 @@ def test_expected_prior_energy_is_the_trace_of_the_em_update():
     energy = expected_prior_energy(np.zeros((T * T, 1, 1)), prior.area, [tau2], L, 2)[:, 0]
     new_tau2, new_std = updated_spread(np.zeros(T * T), prior.unit, energy, tau2, 0.01)
     assert new_std == pytest.approx(0.01, rel=0.02)
+
+
+def test_the_blurred_posterior_matches_the_dense_one():
+    """Data seen through a Gaussian blur of 0.7 texels (the cheek's capture): the quadrature with
+    the blur's gain (:func:`capture_gain`) against ``(K^T C K + Q)^-1`` of the whole grid,
+    ``K`` the blur as a dense matrix; a blurred capture leaves each texel less certain."""
+    from polarbssrdf.inverse.biophysical.prior import capture_gain
+
+    prior = grid_prior(2)
+    n = T * T
+    tau2 = prior.tau2(0.01)
+    c = 1.0 / 0.004 ** 2
+    sigma_texels = 0.7
+    yy, xx = np.divmod(np.arange(n), T)
+    distance2 = (yy[:, None] - yy[None]) ** 2 + (xx[:, None] - xx[None]) ** 2
+    K = np.exp(-0.5 * distance2 / sigma_texels ** 2)
+    K /= K.sum(axis=1, keepdims=True)
+    dense = np.linalg.inv(c * K.T @ K + prior.unit.toarray() / tau2)
+    centre = (T // 2) * T + T // 2
+    area = np.array([H * H])
+    gain = capture_gain(area, (sigma_texels * H) ** 2)
+    blurred = posterior_covariance(np.full((1, 1, 1), c), area, [tau2], L, 2, gain=gain)[0, 0, 0]
+    assert blurred == pytest.approx(dense[centre, centre], rel=0.05)
+    sharp = posterior_covariance(np.full((1, 1, 1), c), area, [tau2], L, 2)[0, 0, 0]
+    assert blurred > 1.2 * sharp
+    assert capture_gain(area, 0.0) is None
+
+
+def test_the_per_texel_solve_is_the_eigenbasis_one_for_one_symbol():
+    """A correlation length given per texel and map (the freed prior's path) that is the same
+    everywhere gives what the shared eigenbasis gives: covariance, held maps' error, and the
+    EM update's prior energy, with a blur and correlated noise."""
+    from polarbssrdf.inverse.biophysical.prior import capture_gain, expected_prior_energy
+
+    rng = np.random.default_rng(4)
+    n, k = 5, 3
+    root = rng.standard_normal((n, k, k)) * 30.0
+    C = np.einsum("nij,nkj->nik", root, root) + 10.0 * np.eye(k)
+    area = rng.uniform(0.2, 0.4, n)
+    tau2 = np.array([1e-4, 4e-4, 2e-4])
+    gain = capture_gain(area, 0.1)
+    spectrum = noise_spectrum({(0, 1): 0.3, (0, -1): 0.3, (1, 0): 0.2, (-1, 0): 0.2})
+    every = np.full((n, k), L)
+    np.testing.assert_allclose(posterior_covariance(C, area, tau2, every, 2, spectrum, gain),
+                               posterior_covariance(C, area, tau2, L, 2, spectrum, gain), rtol=1e-6)
+    np.testing.assert_allclose(held_map_error_covariance(C, 1, area, tau2, every, 2, spectrum, gain),
+                               held_map_error_covariance(C, 1, area, tau2, L, 2, spectrum, gain), rtol=1e-6)
+    np.testing.assert_allclose(expected_prior_energy(C, area, tau2, every, 2, gain),
+                               expected_prior_energy(C, area, tau2, L, 2, gain), rtol=1e-6)
+    # a texel whose spread is freed (tau^2 / w, w = 0.01) is less certain there, not elsewhere
+    freed = np.tile(tau2, (n, 1))
+    freed[2] /= 0.01
+    wide = posterior_covariance(C, area, freed, every, 2, None, gain)
+    base = posterior_covariance(C, area, tau2, every, 2, None, gain)
+    assert np.all(np.diagonal(wide[2]) > np.diagonal(base[2]))
+    np.testing.assert_allclose(np.delete(wide, 2, axis=0), np.delete(base, 2, axis=0))
