@@ -16,8 +16,10 @@ fitted end to end at a seed the docs do not use, where the issue's figure is ass
 an unseen face with fainter freckles (melanin x1.8) at the cheek's texel size, its albedo
 blurred by a Gaussian of 0.7 texels in texel units (SciPy's, not the fit's blur, which works
 in mm over the atlas's texel sizes), then 0.5% noise of a seed no default was tuned on, where
-the fit is compared with the Gaussian field that reads the input as sharp (on it the
-freckles' 3-std share is in bench/RESULTS.md, not asserted: 36 texels).
+the fit, told the blur 20% too low or too high (never the true one), is compared with the
+Gaussian field that reads the input as sharp (on it the freckles' 3-std share is in
+bench/RESULTS.md, not asserted: 36 texels). Told too much blur, the fit deblurs past the data:
+a strict expected failure that names its figures.
 """
 
 import numpy as np
@@ -169,30 +171,45 @@ def _within(face, result, mask, k):
     return float(np.mean(error[mask] < k * result.std["C_m"][mask]))
 
 
+MISJUDGED_BLUR = {"low": 0.8, "high": 1.2}
+"""The blur the fit is told, as a share of the true one: never the true value, which a capture
+does not give; 20% either way is what the cameras' estimate is tested to
+(``test_the_capture_blur_is_the_one_the_albedo_shows``)."""
+
+OVERSHOOT = ("told 1.2x the blur, the fit deblurs past the data (2026-12-06): freckle melanin error "
+             "0.0322 against the sharp fit's 0.0269; away from the features C_m 1.43x, C_h_out 1.24x")
+
+
 @pytest.fixture(scope="module")
 def fits(blurred_freckled_face):
     blur_mm = blurred_freckled_face[4]
-    return {"feature-aware": _fit(blurred_freckled_face, capture_blur_mm=blur_mm),
-            "gaussian, sharp": _fit(blurred_freckled_face, capture_blur_mm=0.0, feature_fraction=0.0)}
+    told = {side: _fit(blurred_freckled_face, capture_blur_mm=share * blur_mm)
+            for side, share in MISJUDGED_BLUR.items()}
+    return {**told, "gaussian, sharp": _fit(blurred_freckled_face, capture_blur_mm=0.0, feature_fraction=0.0)}
 
 
-def test_freckles_come_closer_to_their_truth(blurred_freckled_face, fits):
+BLUR_SIDES = ["low", pytest.param("high", marks=pytest.mark.xfail(strict=True, reason=OVERSHOOT))]
+
+
+@pytest.mark.parametrize("side", BLUR_SIDES)
+def test_freckles_come_closer_to_their_truth(blurred_freckled_face, fits, side):
     """The freckles' melanin error shrinks against the Gaussian field that reads the input as
     sharp, and more of them fall within 3 std."""
     atlas, truth = blurred_freckled_face[:2]
     freckles = _freckles(truth, atlas.valid)
     error = {name: float(np.mean(np.abs(result.maps["C_m"] - truth["C_m"])[freckles]))
              for name, result in fits.items()}
-    assert error["feature-aware"] < 0.9 * error["gaussian, sharp"]
-    assert (_within(blurred_freckled_face, fits["feature-aware"], freckles, 3.0)
+    assert error[side] < 0.9 * error["gaussian, sharp"]
+    assert (_within(blurred_freckled_face, fits[side], freckles, 3.0)
             > _within(blurred_freckled_face, fits["gaussian, sharp"], freckles, 3.0))
 
 
-@pytest.mark.parametrize("name", [
-    pytest.param("C_m", marks=pytest.mark.xfail(strict=True, reason="C_m 1.12x (2026-12-06): the face's "
-                                                "4 blood patches free melanin at their edges too")),
-    "beta_m", "C_h_out", "C_h_in"])
-def test_the_skin_around_keeps_its_maps(blurred_freckled_face, fits, name):
+@pytest.mark.parametrize("side,name", [
+    *[("low", name) for name in ("C_m", "beta_m", "C_h_out", "C_h_in")],
+    *[pytest.param("high", name, marks=pytest.mark.xfail(strict=True, reason=OVERSHOOT))
+      for name in ("C_m", "C_h_out")],
+    *[("high", name) for name in ("beta_m", "C_h_in")]])
+def test_the_skin_around_keeps_its_maps(blurred_freckled_face, fits, side, name):
     """Away from the features (the freckles and the blood patches, 3 texels around) the fit is
     no worse: each map's error there at most 10% above the Gaussian, sharp fit's, and its 2-std
     coverage no lower."""
@@ -202,10 +219,10 @@ def test_the_skin_around_keeps_its_maps(blurred_freckled_face, fits, name):
     patches = truth["C_h_in"] > 1.25 * median_filter(truth["C_h_in"], size=25)
     skin = atlas.valid & ~binary_dilation(_freckles(truth, atlas.valid) | patches, iterations=3)
     error = {label: float(np.mean(np.abs(result.maps[name] - truth[name])[skin])) for label, result in fits.items()}
-    assert error["feature-aware"] < 1.1 * error["gaussian, sharp"]
+    assert error[side] < 1.1 * error["gaussian, sharp"]
     coverage = {label: float(np.mean(np.abs(result.maps[name] - truth[name])[skin] < 2.0 * result.std[name][skin]))
                 for label, result in fits.items()}
-    assert coverage["feature-aware"] >= coverage["gaussian, sharp"] - 0.01
+    assert coverage[side] >= coverage["gaussian, sharp"] - 0.01
 
 
 def test_a_local_departure_frees_the_prior_and_noise_does_not():
