@@ -17,6 +17,11 @@ Ctrl-C in a terminal reaches the local cluster's workers too (one process
 group): they ignore it and this process, which handles it, closes the cluster
 (:func:`_local_cluster`). :func:`check_scheduler` tells before any work
 whether a scheduler answers at an address.
+
+A frame's numbers must not depend on where it runs: frame functions fit
+inside :func:`~polarbssrdf._threads.one_blas_thread`, BLAS on one thread as
+in a Dask worker, so a frame fitted here equals the one fitted on a worker bit
+for bit (:mod:`polarbssrdf._threads` says why it matters).
 """
 
 from __future__ import annotations

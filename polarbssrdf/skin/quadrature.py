@@ -37,6 +37,7 @@ import dataclasses
 import numpy as np
 from scipy.optimize import nnls
 
+from .._threads import one_blas_thread
 from ..spectral.bands import band_weights_matrix
 from .chromophores import check_wavelengths, hemoglobin_wavelength_range
 from .layers import chromophore_basis
@@ -239,11 +240,16 @@ _CACHE_SIZE = 8
 
 
 def _cached(key, make):
-    """One quadrature per bands and settings per process (bands hold arrays: keyed by their bytes)."""
+    """One quadrature per bands and settings per process (bands hold arrays: keyed by their bytes).
+
+    Made with BLAS on one thread: the greedy selection's least squares otherwise give other
+    last bits in a process with more BLAS threads than a Dask worker has, and every fit that
+    reads the cached quadrature then differs (:mod:`polarbssrdf._threads`)."""
     if key not in _CACHE:
         if len(_CACHE) >= _CACHE_SIZE:
             _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = make()
+        with one_blas_thread():
+            _CACHE[key] = make()
     return _CACHE[key]
 
 

@@ -105,3 +105,36 @@ def test_spectral_reflectance_with_a_gamma_map_matches_the_scalar_basis():
     low["gamma"], high["gamma"] = np.full(5, 0.5), np.full(5, 0.95)
     change = np.abs(spectral_reflectance(high, wavelengths) / spectral_reflectance(low, wavelengths) - 1.0)
     assert np.all(change[:, 2] > 5 * change[:, 1])
+
+
+_QUADRATURE_DIGEST = """
+import hashlib
+from polarbssrdf.skin.quadrature import band_integral_quadrature
+from polarbssrdf.spectral.bands import shipped_default_bands
+q = band_integral_quadrature(shipped_default_bands())
+print(hashlib.sha1(q.wavelengths_nm.tobytes() + q.weights.tobytes()).hexdigest())
+"""
+
+
+def _quadrature_digest(blas_threads):
+    import os
+    import subprocess
+    import sys
+
+    # OpenBLAS's Haswell kernels: their dot products round otherwise on two threads than on
+    # one (the native kernels of some CPUs do not), so the test can fail on any x86 machine
+    environment = {**os.environ, "OPENBLAS_CORETYPE": "Haswell", "OPENBLAS_NUM_THREADS": str(blas_threads)}
+    out = subprocess.run([sys.executable, "-c", _QUADRATURE_DIGEST], env=environment,
+                         capture_output=True, text=True, check=True)
+    return out.stdout.strip()
+
+
+def test_the_quadrature_is_the_same_with_one_or_two_blas_threads():
+    """A process with BLAS on two threads makes the quadrature a Dask worker (one thread) makes,
+    to the bit: every fit that reads the cached quadrature depends on it
+    (:mod:`polarbssrdf._threads`; without it a biophysical frame moved 3.5e-4 of C_h_out)."""
+    import platform
+
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip("OPENBLAS_CORETYPE=Haswell names an x86 kernel")
+    assert _quadrature_digest(2) == _quadrature_digest(1)

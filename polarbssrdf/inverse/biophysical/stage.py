@@ -36,6 +36,7 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
+from polarbssrdf._threads import one_blas_thread
 from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.geometry.face import face_mesh, face_region_masks
 from polarbssrdf.inverse.biophysical.config import bio_config
@@ -203,12 +204,14 @@ def _atlas(capture, texture_size):
     return _ATLASES[key]
 
 
+@one_blas_thread()
 def write_frame(capture, outdir, frame, source, texture_size, settings, reference=None, progress=None):
     """Fit one frame and write its map file (not registered) and previews; returns its channels.
 
     A pure function of (the capture's bands and mesh, ``outdir``'s ``source``
     maps of ``frame``, ``reference``: the first frame's biophysical maps or
-    None), so later frames can run on Dask workers.
+    None), so later frames can run on Dask workers; its BLAS runs on one thread
+    wherever it runs (:func:`~polarbssrdf._threads.one_blas_thread`).
     """
 
     config, free_melanin = bio_config(settings)

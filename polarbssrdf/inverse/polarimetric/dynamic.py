@@ -36,6 +36,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
+from polarbssrdf._threads import one_blas_thread
 from polarbssrdf.errors import option
 from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.inverse.frames import run_frames
@@ -102,6 +103,7 @@ def static_held_maps(outdir):
     return dict((metadata or {}).get("held_at_face_mean", {}))
 
 
+@one_blas_thread()
 def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(), *,
               variant="llvm_ad_mono_polarized", threads=None, progress=False):
     """Fit one frame and write ``dynamic/maps_f####.exr`` (not registered); returns its record.
@@ -109,7 +111,8 @@ def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(),
     Pure: reads the capture and ``outdir``'s static maps, writes only that
     frame's files (its observation cache, checkpoint, maps). ``config_json``
     is ``StaticConfig.to_json()`` (plain data, so the call can travel to a
-    Dask worker). ``threads``: Dr.Jit's thread count in this process.
+    Dask worker). ``threads``: Dr.Jit's thread count in this process. BLAS runs on
+    one thread wherever the frame runs (:func:`~polarbssrdf._threads.one_blas_thread`).
     """
     started = time.perf_counter()
     select_variant(variant)
