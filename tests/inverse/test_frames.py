@@ -1,4 +1,4 @@
-"""A frame's numbers do not depend on where it runs (polarbssrdf.inverse.frames).
+"""A frame's numbers do not depend on where it runs (polarbssrdf._threads, polarbssrdf.inverse.frames).
 
 Dask starts its workers with BLAS on one thread; this process gives BLAS every core, and a
 multithreaded OpenBLAS dot product sums per-thread partials in another order. The frame
