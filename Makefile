@@ -13,9 +13,10 @@ demo: setup
 	$(BIN)/polarbssrdf demo out/demo --overwrite
 
 # one worker per core (at most 4: each holds a Dr.Jit process of ~1.5 GiB); a file's tests
-# stay in one worker so its module fixtures are built once
+# stay in one worker so its module fixtures are built once, and the files go out in
+# collection order, the longest first (tests/conftest.py, SLOWEST_FILES)
 test: setup
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile --no-loadscope-reorder
 
 bench: setup
 	$(BIN)/python bench/run_all.py

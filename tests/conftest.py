@@ -1,5 +1,8 @@
 """Shared fixtures. Mitsuba's variant is process-global: tests set the one they need."""
 
+import os
+
+import drjit as dr
 import numpy as np
 import pytest
 
@@ -26,3 +29,56 @@ def hemisphere(rng):
         return out[:n]
 
     return sample
+
+
+SLOWEST_FILES = (
+    "tests/inverse/biophysical/test_freckles.py",  # 264 s
+    "tests/inverse/biophysical/test_bio_calibration.py",  # 151 s
+    "tests/test_demo.py",  # 140 s
+    "tests/inverse/polarimetric/test_dynamic.py",  # 140 s
+    "tests/inverse/biophysical/test_bio_stage.py",  # 118 s
+    "tests/inverse/biophysical/test_biophysical.py",  # 73 s
+    "tests/inverse/biophysical/test_texel_noise.py",  # 54 s
+    "tests/skin/test_skin_band_information.py",  # 47 s
+    "tests/inverse/test_run_inputs.py",  # 32 s
+)
+"""The files that take longest, longest first, with their time in a clean-clone ``make test``
+(2026-12-06). ``make test`` hands whole files to its workers in collection order
+(``--dist loadfile --no-loadscope-reorder``): starting the longest first keeps one worker
+from finishing a long file alone at the end (longest processing time first; Graham, SIAM J.
+Appl. Math. 17, 1969). Files not listed keep their order after these."""
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {path: index for index, path in enumerate(SLOWEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))  # stable: keeps the rest's order
+
+
+def _cores_per_worker():
+    """Each pytest-xdist worker's share of the cores, or None outside xdist (or with one worker)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers < 2:
+        return None
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cores // workers)
+
+
+DEFAULT_JIT_THREADS = dr.thread_count()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def jit_threads_per_worker(request):
+    """Dr.Jit on the worker's share of the cores in the files marked ``cores_shared``.
+
+    Dr.Jit starts a thread per core in every process, and its idle threads wait spinning:
+    test_bio_stage and test_dynamic run side by side on two cores took 159 s with two
+    threads each and 115 s with one (2026-12-06, bench/RESULTS.md). Not every file: with
+    one thread, Mitsuba 3.9 hangs reading or writing an EXR (``mi.Bitmap``; this package
+    writes and reads them with OpenEXR), so the files marked are those measured to pass
+    with it. Dr.Jit's numbers do not depend on its thread count; BLAS keeps its own
+    (tests/inverse/test_frames.py tests the frames' limit)."""
+    share = _cores_per_worker()
+    wanted = share if (share is not None and request.node.get_closest_marker("cores_shared")) else DEFAULT_JIT_THREADS
+    if dr.thread_count() != wanted:
+        dr.set_thread_count(wanted)
+    yield

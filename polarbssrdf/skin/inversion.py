@@ -213,10 +213,21 @@ def _grid_axes(size: str = "default"):
     )
 
 
-@functools.lru_cache(maxsize=8)
 def _table(key, size: str):
     """(parameter grid (M, 4), (mean, projection) of the outputs, KD-tree over
-    the projected outputs); cached per samples (module-level LRU)."""
+    the projected outputs); cached per model and size (module-level LRUs).
+
+    The biophysical fit inverts block means in bins of the index
+    (:func:`~polarbssrdf.inverse.biophysical.start.block_inversion`) at several skin values,
+    about 50 tables of the small and default sizes per fit (1-5 MB each): 64 of them are
+    kept, so fits of one face in one process (rounds of a dynamic sequence, a test file's
+    variants) build them once, where 8 were rebuilt by every fit. The large tables
+    (268,128 entries, about 27 MB each) keep 8."""
+    return (_large_table if size == "large" else _small_table)(key, size)
+
+
+def _build_table(key, size: str):
+    """The uncached :func:`_table`."""
     model = _MODELS[key]
     axes = _grid_axes(size)
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 4)
@@ -234,6 +245,10 @@ def _table(key, size: str):
     return grid, (mean, projection), cKDTree((values - mean) @ projection)
 
 
+_small_table = functools.lru_cache(maxsize=64)(_build_table)
+_large_table = functools.lru_cache(maxsize=8)(_build_table)
+
+
 _MODELS: dict = {}
 
 
@@ -241,7 +256,7 @@ def _model_key(basis: dict, gamma, thickness_mm, eta, projection=None):
     key = (tuple((k, np.asarray(v, dtype=float).tobytes()) for k, v in sorted(basis.items())), float(gamma),
            float(thickness_mm), float(eta), None if projection is None else np.asarray(projection).tobytes())
     if key not in _MODELS:
-        if len(_MODELS) > 64:
+        if len(_MODELS) > 128:  # more than the tables cached (:func:`_table`)
             _MODELS.clear()
         _MODELS[key] = _Model(basis, gamma, thickness_mm, eta, projection)
     return key
