@@ -68,17 +68,18 @@ DEFAULT_JIT_THREADS = dr.thread_count()
 
 @pytest.fixture(scope="module", autouse=True)
 def jit_threads_per_worker(request):
-    """Dr.Jit on the worker's share of the cores in the files marked ``cores_shared``.
+    """Under pytest-xdist, Dr.Jit on each worker's share of the cores, except in files marked
+    ``jit_all_cores``.
 
     Dr.Jit starts a thread per core in every process, and its idle threads wait spinning:
     test_bio_stage and test_dynamic run side by side on two cores took 159 s with two
-    threads each and 115 s with one (2026-12-06, bench/RESULTS.md). Not every file: with
-    one thread, Mitsuba 3.9 hangs reading or writing an EXR (``mi.Bitmap``; this package
-    writes and reads them with OpenEXR), so the files marked are those measured to pass
-    with it. Dr.Jit's numbers do not depend on its thread count; BLAS keeps its own
+    threads each and 115 s with one (2026-12-06, bench/RESULTS.md). The exception: with one
+    thread, Mitsuba 3.9 hangs reading or writing an EXR through ``mi.Bitmap`` (this package
+    reads and writes them with OpenEXR; only tests/plugins/test_pbssrdf.py does through
+    Mitsuba). Dr.Jit's numbers do not depend on its thread count; BLAS keeps its own
     (tests/inverse/test_frames.py tests the frames' limit)."""
     share = _cores_per_worker()
-    wanted = share if (share is not None and request.node.get_closest_marker("cores_shared")) else DEFAULT_JIT_THREADS
+    wanted = DEFAULT_JIT_THREADS if (share is None or request.node.get_closest_marker("jit_all_cores")) else share
     if dr.thread_count() != wanted:
         dr.set_thread_count(wanted)
     yield

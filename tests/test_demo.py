@@ -25,8 +25,6 @@ import pytest
 
 from helpers import default_sigint, run_cli
 
-pytestmark = pytest.mark.cores_shared  # Dr.Jit on the worker's share of the cores (tests/conftest.py)
-
 TINY = dict(views=4, frames=2, texture=32, resolution=96, spp=2, iterations=5)
 IMAGE = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
 

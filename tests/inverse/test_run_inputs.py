@@ -18,8 +18,6 @@ import pytest
 from helpers import run_cli
 from polarbssrdf.errors import EXIT_USER_ERROR
 
-pytestmark = pytest.mark.cores_shared  # Dr.Jit on the worker's share of the cores (tests/conftest.py)
-
 SMALL = {"patch_size": 16, "min_steps_per_epoch": 1}
 
 

@@ -17,8 +17,6 @@ from polarbssrdf.skin.parameters import TABLE2, SkinParameters
 from polarbssrdf.skin.quadrature import quadrature_reflectance, spectral_quadrature
 from polarbssrdf.spectral import bandpass_bands, bands_to_json, comb_pair_bands, shipped_default_bands
 
-pytestmark = pytest.mark.cores_shared  # Dr.Jit on the worker's share of the cores (tests/conftest.py)
-
 ROW = ("forehead", "IV")
 
 

@@ -26,8 +26,6 @@ import pytest
 
 import mitsuba as mi
 
-pytestmark = pytest.mark.cores_shared  # Dr.Jit on the worker's share of the cores (tests/conftest.py)
-
 PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
 LIMITS = {"C_m": 0.5, "beta_m": 1.0, "C_h_out": 0.5, "C_h_in": 0.5}
 COVERAGE = (0.90, 0.98)

@@ -8,8 +8,6 @@ import pytest
 import mitsuba as mi
 from polarbssrdf.spectral import default_bands
 
-pytestmark = pytest.mark.cores_shared  # Dr.Jit on the worker's share of the cores (tests/conftest.py)
-
 PARAMETERS = ("C_m", "beta_m", "C_h_out", "C_h_in")
 SKIN = ("forehead", "IV")
 STD = {"C_m": 0.012, "beta_m": 0.01, "C_h_out": 0.02, "C_h_in": 0.012}

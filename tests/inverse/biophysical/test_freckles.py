@@ -28,8 +28,6 @@ from scipy.ndimage import gaussian_filter, median_filter
 
 import mitsuba as mi
 
-pytestmark = pytest.mark.cores_shared  # Dr.Jit on the worker's share of the cores (tests/conftest.py)
-
 CHEEK = {
     "skin": ["cheek", "IV"],
     "reflectance": {"alpha_s": [0.35, 0.02, 0.1, 0.7], "displacement": [0.0, 0.05, -0.5, 0.5]},

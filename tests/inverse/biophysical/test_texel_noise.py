@@ -16,8 +16,6 @@ import pytest
 
 import mitsuba as mi
 
-pytestmark = pytest.mark.cores_shared  # Dr.Jit on the worker's share of the cores (tests/conftest.py)
-
 SIZE = 96
 THICKNESS_MM, GAMMA = 0.28, 0.71
 QUIET, NOISY = 0.005, 0.02

@@ -9,8 +9,6 @@ import threading
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.cores_shared  # Dr.Jit on the worker's share of the cores (tests/conftest.py)
-
 
 T = 64
 FRAMES = 5
