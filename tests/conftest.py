@@ -42,11 +42,12 @@ SLOWEST_FILES = (
     "tests/skin/test_skin_band_information.py",  # 47 s
     "tests/inverse/test_run_inputs.py",  # 32 s
 )
-"""The files that take longest, longest first, with their time in a clean-clone ``make test``
-(2026-12-06). ``make test`` hands whole files to its workers in collection order
-(``--dist loadfile --no-loadscope-reorder``): starting the longest first keeps one worker
-from finishing a long file alone at the end (longest processing time first; Graham, SIAM J.
-Appl. Math. 17, 1969). Files not listed keep their order after these."""
+"""The files that take longest, longest first, with their time in ``make test`` at fe94c4f
+(2026-12-06, kernel cache warm; bench/RESULTS.md). ``make test`` hands whole files to its
+workers in collection order (``--dist loadfile --no-loadscope-reorder``): starting the
+longest first keeps one worker from finishing a long file alone at the end (longest
+processing time first; Graham, SIAM J. Appl. Math. 17, 1969). Files not listed keep their
+order after these."""
 
 
 def pytest_collection_modifyitems(session, config, items):
