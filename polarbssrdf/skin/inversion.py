@@ -220,8 +220,9 @@ def _table(key, size: str):
     The biophysical fit inverts block means in bins of the index
     (:func:`~polarbssrdf.inverse.biophysical.start.block_inversion`) at several skin values,
     about 50 tables of the small and default sizes per fit (1-5 MB each): 64 of them are
-    kept, so fits of one face in one process (rounds of a dynamic sequence, a test file's
-    variants) build them once, where 8 were rebuilt by every fit. The large tables
+    kept, so fits of one face at the same skin values in one process (a fit repeated with
+    other settings) build them once, where 8 were rebuilt by every fit (a second fit of a
+    128^2 face: 27.0 -> 24.5 s, bench/RESULTS.md). The large tables
     (268,128 entries, about 27 MB each) keep 8."""
     return (_large_table if size == "large" else _small_table)(key, size)
 
