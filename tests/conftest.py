@@ -5,6 +5,7 @@ import os
 import drjit as dr
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_limits
 
 import polarbssrdf  # noqa: F401  (configures libLLVM, registers plugins on variant change)
 import mitsuba as mi  # noqa: F401  (imported after polarbssrdf on purpose)
@@ -68,19 +69,31 @@ DEFAULT_JIT_THREADS = dr.thread_count()
 
 
 @pytest.fixture(scope="module", autouse=True)
-def jit_threads_per_worker(request):
-    """Under pytest-xdist, Dr.Jit on each worker's share of the cores, except in files marked
-    ``jit_all_cores``.
+def threads_per_worker(request):
+    """Under pytest-xdist, Dr.Jit and BLAS on each worker's share of the cores, except in
+    files marked ``all_cores``.
 
-    Dr.Jit starts a thread per core in every process, and its idle threads wait spinning:
+    Both start a thread per core in every process, and idle threads of both wait spinning:
     test_bio_stage and test_dynamic run side by side on two cores took 159 s with two
-    threads each and 115 s with one (2026-12-06, bench/RESULTS.md). The exception: with one
-    thread, Mitsuba 3.9 hangs reading or writing an EXR through ``mi.Bitmap`` (this package
-    reads and writes them with OpenEXR; only tests/plugins/test_pbssrdf.py does through
-    Mitsuba). Dr.Jit's numbers do not depend on its thread count; BLAS keeps its own
-    (tests/inverse/test_frames.py tests the frames' limit)."""
+    Dr.Jit threads each and 115 s with one (2026-12-06); with Dr.Jit on one thread,
+    test_bio_stage beside test_texel_noise and test_biophysical took 134 s with two BLAS
+    threads each and 94 s with one (2026-12-07, bench/RESULTS.md). Neither library's
+    numbers depend on the limit inside a test: Dr.Jit's never do, and what BLAS would
+    split differently is computed inside :func:`polarbssrdf._threads.one_blas_thread`
+    anyway. The exceptions: with one thread, Mitsuba 3.9 hangs reading or writing an EXR
+    through ``mi.Bitmap`` (this package reads and writes them with OpenEXR; only
+    tests/plugins/test_pbssrdf.py does through Mitsuba), and tests/inverse/test_frames.py
+    shows that BLAS on two threads gives other last bits than on one. Commands a test starts
+    get BLAS's share through the environment (Dr.Jit has no such variable)."""
     share = _cores_per_worker()
-    wanted = DEFAULT_JIT_THREADS if (share is None or request.node.get_closest_marker("jit_all_cores")) else share
-    if dr.thread_count() != wanted:
-        dr.set_thread_count(wanted)
-    yield
+    if share is None or request.node.get_closest_marker("all_cores"):
+        if dr.thread_count() != DEFAULT_JIT_THREADS:
+            dr.set_thread_count(DEFAULT_JIT_THREADS)
+        yield
+        return
+    if dr.thread_count() != share:
+        dr.set_thread_count(share)
+    with threadpool_limits(limits=share), pytest.MonkeyPatch.context() as patch:
+        for variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # the commands a test starts
+            patch.setenv(variable, str(share))
+        yield

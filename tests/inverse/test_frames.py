@@ -16,6 +16,8 @@ from threadpoolctl import threadpool_info
 
 from polarbssrdf._threads import one_blas_thread
 
+pytestmark = pytest.mark.all_cores  # BLAS on two threads where a test compares it with one
+
 SIZE = 200_000
 """Long enough that OpenBLAS splits the dot product over its threads."""
 

@@ -8,7 +8,7 @@ import mitsuba as mi
 from helpers import mueller_to_numpy
 
 # Mitsuba's EXR reader and writer (mi.Bitmap) hang with one Dr.Jit thread (tests/conftest.py)
-pytestmark = pytest.mark.jit_all_cores
+pytestmark = pytest.mark.all_cores
 
 POLARIZED_VARIANTS = ["llvm_ad_mono_polarized", "llvm_ad_spectral_polarized"]
 
