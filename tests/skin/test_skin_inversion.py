@@ -101,3 +101,25 @@ def test_tabulated_model_of_the_lm_steps_matches_the_exact_model(samples):
     fd = model.finite_difference_jacobian(p[:300])
     scale = np.abs(fd).max(axis=(0, 1))
     assert np.all(np.abs(jac[:300] - fd).max(axis=(0, 1)) < 1e-3 * scale)
+
+
+@pytest.mark.parametrize("projected", [False, True])
+def test_the_start_table_evaluated_layer_by_layer_is_the_model_on_the_grid(projected):
+    """``_Model.on_grid`` (the epidermis once per C_m, beta_m, C_h_out; the dermis once per
+    C_h_in) gives the exact model on every grid point, in the grid's order, with a quadrature's
+    projection and without: to the bit before the projection, to rounding after it (its
+    matrix product runs in other blocks); on an uneven grid, so a transposed axis would show."""
+    from polarbssrdf.skin.inversion import _MODELS, _model_key
+    from polarbssrdf.skin.quadrature import spectral_quadrature
+
+    quadrature = spectral_quadrature(default_bands(), "integral")
+    model = _MODELS[_model_key(quadrature.basis, 0.7, 0.2, 1.45, quadrature.weights if projected else None)]
+    axes = (np.geomspace(0.002, 0.4, 5), np.linspace(0.0, 1.0, 3), np.linspace(0.0, 0.25, 4),
+            np.geomspace(0.002, 0.25, 7))
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 4)
+    tabulated = model.on_grid(axes, chunk=50)  # blocks that do not divide the grid
+    assert tabulated.shape == (420, 6 if projected else quadrature.basis["eumelanin"].shape[-1])
+    if projected:
+        np.testing.assert_allclose(tabulated, model(grid), rtol=1e-13, atol=0)
+    else:
+        np.testing.assert_array_equal(tabulated, model(grid))
