@@ -589,6 +589,14 @@ def mean_mode_covariance(data_precision, area_mm2, tau2, mean_variance):
     return M @ covariance @ np.swapaxes(M, 1, 2), covariance
 
 
+FFT_THREADED_TEXELS = 512 * 512
+"""From this many texels :class:`FourierPreconditioner`'s FFTs run on every core (scipy's
+``workers=-1``), below it on one: four maps' forward and inverse FFT on two idle cores took
+0.80 / 1.06 ms at 128^2, 3.26 / 3.61 ms at 256^2 and 16.7 / 11.9 ms at 512^2 (one / every
+core; 2026-12-07, bench/RESULTS.md), and threads a process starts beside other busy ones
+(two test workers, Dask's frames) only wait for a core."""
+
+
 class FourierPreconditioner:
     """``P^-1`` for the Gauss-Newton system ``C + Q``: its exact inverse for constant data.
 
@@ -632,10 +640,10 @@ class FourierPreconditioner:
         n, k = x.shape
         grid = np.zeros((self.shape[0] * self.shape[1], k))
         grid[self.index] = x
-        # scipy's FFT threads over the k maps (workers=-1: every core)
-        spectrum = fft.rfft2(grid.reshape(*self.shape, k), axes=(0, 1), workers=-1)
+        workers = -1 if grid.shape[0] >= FFT_THREADED_TEXELS else 1
+        spectrum = fft.rfft2(grid.reshape(*self.shape, k), axes=(0, 1), workers=workers)
         spectrum = np.matmul(self.inverse, spectrum[..., None])[..., 0]
-        out = fft.irfft2(spectrum, s=self.shape, axes=(0, 1), workers=-1).reshape(-1, k)
+        out = fft.irfft2(spectrum, s=self.shape, axes=(0, 1), workers=workers).reshape(-1, k)
         return out[self.index]
 
 
