@@ -47,7 +47,9 @@ class BiophysicalConfig:
         retried with more damping); a round stops earlier once a step lowers the loss by
         less than ``tolerance`` of it.
     tolerance : float
-        Relative loss decrease below which a round's Gauss-Newton steps stop.
+        Relative loss decrease below which the last round's Gauss-Newton steps stop (the
+        rounds before it stop at
+        :data:`~polarbssrdf.inverse.biophysical.fit.EARLY_ROUND_TOLERANCE` if that is larger).
     rounds : int
         Rounds at most of the outer loop (kernels, the face's thickness and oxygenation,
         noise and spreads refreshed between rounds); it stops earlier once the kernels

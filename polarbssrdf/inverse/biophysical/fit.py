@@ -20,7 +20,8 @@ texel with their posterior std, by one algorithm:
   fitted at the median texel, the noise is re-estimated from the residuals and the
   chromophores' spreads by expectation-maximization. It stops once the kernels change by
   less than ``kernel_tolerance`` and no noise estimate nor spread moves by more than
-  :data:`OUTER_TOLERANCE`;
+  :data:`OUTER_TOLERANCE`; the rounds before that end their steps at
+  :data:`EARLY_ROUND_TOLERANCE`, the last at ``config.tolerance``;
 * the posterior standard deviation of every map per texel (:mod:`.uncertainty`), with what
   the skin's other unknowns move the maps by (:data:`~.config.NUISANCES`): the thickness and
   oxygenation at the face level (``nuisance_mean``'s std) and within the face
@@ -73,6 +74,13 @@ from polarbssrdf.skin.quadrature import DESIGN_BOX, spectral_quadrature
 OUTER_TOLERANCE = 0.05
 """The outer loop stops once the kernels have settled and no band's noise estimate, map's
 spread (relative) nor the face's thickness and oxygenation (in their spread) moved by more."""
+
+EARLY_ROUND_TOLERANCE = 1e-3
+"""Relative loss decrease at which the Gauss-Newton steps of a round before the last end: the
+noise and spreads the next round re-estimates move every map's weights (by 7-107% after the
+first two rounds of a 128^2 freckled face), so steps past it were spent on a landscape about
+to change. On that face rounds 1 and 2 took their 12-step limit with the decrease still
+2.8e-4 and 2.0e-4 (bench/RESULTS.md, 2026-12-07)."""
 
 NOISE_FLOOR = 2e-4
 """Smallest relative noise the fit assumes: the model's own error (its tables, the kernels'
@@ -372,8 +380,12 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
             if progress:
                 progress(f"bio round {_round + 1}/{config.rounds}, {message}")
 
+        # a round whose noise and spreads are still moving ends its steps early; the last
+        # round the loop allows, and the one after which it stops, end at the config's tolerance
+        tolerance = (config.tolerance if round_index == config.rounds - 1
+                     else max(config.tolerance, EARLY_ROUND_TOLERANCE))
         maps, before, after, losses = gauss_newton(data, prior, maps, list(held), bounds, movable,
-                                                   config.iterations, config.tolerance, step_progress)
+                                                   config.iterations, tolerance, step_progress)
         entry = {"round": round_index, "loss_start": before, "loss_end": after,
                  "losses": [float(v) for v in losses], "kernel_change": change}
         moved = 0.0
@@ -397,6 +409,11 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
             progress(f"bio round {round_index + 1}: loss {before:.6g} -> {after:.6g}, "
                      f"kernel change {'-' if change is None else f'{change:.4f}'}, largest move {moved:.3f}")
         if change is not None and change < config.kernel_tolerance and moved < OUTER_TOLERANCE:
+            if tolerance > config.tolerance:  # the round ended early: finish its steps
+                maps, _, after, losses = gauss_newton(data, prior, maps, list(held), bounds, movable,
+                                                      config.iterations, config.tolerance, step_progress)
+                entry.update(loss_end=after, finished=[float(v) for v in losses],
+                             seconds=time.perf_counter() - t_round)
             break
     nuisances = nuisance_priors(config, eta_std, face) if spatial is not None else {}
     if nuisances:
