@@ -21,7 +21,7 @@ third 128^2 fit.
 import argparse
 
 import numpy as np
-from scipy.ndimage import binary_dilation, gaussian_filter, median_filter
+from scipy.ndimage import binary_dilation, median_filter
 
 import mitsuba as mi
 
@@ -32,18 +32,10 @@ NOISE = 0.005
 
 def blurred_face(size):
     """``(atlas, truth, bands, inputs, blur_mm)``: the face as the test builds it."""
-    from polarbssrdf.synth.unseen_faces import unseen_face
+    from polarbssrdf.synth.unseen_faces import texel_blurred_albedo, unseen_face
 
     atlas, truth, bands, inputs = unseen_face(3, size, 0.0)
-    weight = gaussian_filter(atlas.valid.astype(np.float64), BLUR_TEXELS)
-    rng = np.random.default_rng(29)
-    blurred = dict(inputs)
-    for band in bands:
-        key = f"rho_sss.{band.name}"
-        clean = np.where(atlas.valid, np.asarray(inputs[key], np.float64), 0.0)
-        seen = gaussian_filter(clean, BLUR_TEXELS) / np.maximum(weight, 1e-9)
-        noisy = seen * (1.0 + NOISE * rng.standard_normal(seen.shape))
-        blurred[key] = np.where(atlas.valid, noisy, np.nan).astype(np.float32)
+    blurred = texel_blurred_albedo(atlas, inputs, bands, BLUR_TEXELS, NOISE, seed=29)
     texel_mm = float(np.median(np.sqrt(np.prod(atlas.texel_size_mm[atlas.valid], axis=-1))))
     return atlas, truth, bands, blurred, BLUR_TEXELS * texel_mm
 

@@ -15,6 +15,7 @@ albedo is the band integral of the truth (synth's) with relative white noise.
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
 
 from polarbssrdf.geometry import face_mesh, texel_atlas, to_mitsuba
 from polarbssrdf.skin.parameters import TABLE2, table2_spread_across_rows
@@ -101,4 +102,22 @@ def unseen_face(index, size=128, noise=0.01, thickness_mm=0.28, gamma=0.71, eta_
     return atlas, truth, bands, inputs
 
 
-__all__ = ["UNSEEN_ROWS", "FEATURES", "SEED_BASE", "WITHIN_FACE", "INDEX_ERROR", "unseen_face"]
+def texel_blurred_albedo(atlas, inputs, bands, blur_texels, noise, seed):
+    """``inputs`` with each band's albedo blurred as a capture blurs it, then noisy: a Gaussian of
+    ``blur_texels`` (sigma, in texel units: SciPy's, not the fit's blur, which works in mm over
+    the atlas's texel sizes) normalized over the surface, times ``1 + noise N(0, 1)`` (seed
+    ``seed``); NaN off the surface. The albedo a fit told a capture blur is tested on
+    (tests/inverse/biophysical/test_freckles.py, bench/freckle_blur.py)."""
+    weight = gaussian_filter(atlas.valid.astype(np.float64), blur_texels)
+    rng = np.random.default_rng(seed)
+    blurred = dict(inputs)
+    for band in bands:
+        key = f"rho_sss.{band.name}"
+        clean = np.where(atlas.valid, np.asarray(inputs[key], np.float64), 0.0)
+        seen = gaussian_filter(clean, blur_texels) / np.maximum(weight, 1e-9)
+        noisy = seen * (1.0 + noise * rng.standard_normal(seen.shape))
+        blurred[key] = np.where(atlas.valid, noisy, np.nan).astype(np.float32)
+    return blurred
+
+
+__all__ = ["UNSEEN_ROWS", "FEATURES", "SEED_BASE", "WITHIN_FACE", "INDEX_ERROR", "unseen_face", "texel_blurred_albedo"]

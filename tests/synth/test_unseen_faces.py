@@ -2,6 +2,7 @@
 and the band set a caller may change (``bench/bio_off_prior.py --oracle`` and ``--bands``)."""
 
 import numpy as np
+import pytest
 
 import mitsuba as mi
 
@@ -43,3 +44,28 @@ def test_the_albedo_is_integrated_over_the_bands_given():
         np.testing.assert_array_equal(inputs_narrow[f"rho_sss.{band.name}"], expected[index])
     valid = np.isfinite(inputs_narrow["rho_sss.bp420"]) & (inputs_narrow["rho_sss.bp680"] > 0)
     assert np.median(inputs_narrow["rho_sss.bp420"][valid]) < 0.8 * np.median(inputs_narrow["rho_sss.bp680"][valid])
+
+
+def test_the_texel_blur_keeps_a_constant_albedo_and_spreads_a_spot_by_its_sigma():
+    """:func:`texel_blurred_albedo` normalizes over the surface (a constant stays constant up to
+    the edge), spreads a one-texel spot with the second moment of a Gaussian of the given sigma,
+    draws the given relative noise, and leaves NaN off the surface."""
+    from polarbssrdf.synth.unseen_faces import texel_blurred_albedo
+
+    atlas, _, bands, inputs = _face()
+    valid = atlas.valid
+    flat = {f"rho_sss.{b.name}": np.full(valid.shape, 0.4) for b in bands}
+    out = texel_blurred_albedo(atlas, flat, bands, 1.5, 0.0, seed=1)
+    band = f"rho_sss.{bands[0].name}"
+    np.testing.assert_allclose(out[band][valid], 0.4, rtol=1e-6)
+    assert np.all(np.isnan(out[band][~valid]))
+    rows, cols = np.nonzero(valid)
+    centre = (int(np.median(rows)), int(np.median(cols)))
+    spot = np.zeros(valid.shape)
+    spot[centre] = 1.0
+    blurred = texel_blurred_albedo(atlas, {band: spot}, bands[:1], 1.5, 0.0, seed=1)[band]
+    grid_rows = np.arange(valid.shape[0])[:, None] - centre[0]
+    weights = np.nan_to_num(blurred)
+    assert np.sum(weights * grid_rows ** 2) / np.sum(weights) == pytest.approx(1.5 ** 2, rel=0.05)
+    noisy = texel_blurred_albedo(atlas, flat, bands, 1.5, 0.01, seed=1)[band][valid]
+    assert np.std(noisy / 0.4 - 1.0) == pytest.approx(0.01, rel=0.1)

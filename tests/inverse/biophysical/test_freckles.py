@@ -135,20 +135,11 @@ def test_the_capture_blur_is_the_one_the_albedo_shows(cheek_result):
 
 @pytest.fixture(scope="module")
 def blurred_freckled_face():
-    from polarbssrdf.synth.unseen_faces import unseen_face
+    from polarbssrdf.synth.unseen_faces import texel_blurred_albedo, unseen_face
 
     mi.set_variant("llvm_ad_mono_polarized")
     atlas, truth, bands, inputs = unseen_face(3, SIZE, 0.0)
-    valid = atlas.valid.astype(np.float64)
-    weight = gaussian_filter(valid, BLUR_TEXELS)
-    rng = np.random.default_rng(29)
-    blurred = dict(inputs)
-    for band in bands:
-        key = f"rho_sss.{band.name}"
-        clean = np.where(atlas.valid, np.asarray(inputs[key], np.float64), 0.0)
-        seen = gaussian_filter(clean, BLUR_TEXELS) / np.maximum(weight, 1e-9)
-        noisy = seen * (1.0 + NOISE * rng.standard_normal(seen.shape))
-        blurred[key] = np.where(atlas.valid, noisy, np.nan).astype(np.float32)
+    blurred = texel_blurred_albedo(atlas, inputs, bands, BLUR_TEXELS, NOISE, seed=29)
     texel_mm = float(np.median(np.sqrt(np.prod(atlas.texel_size_mm[atlas.valid], axis=-1))))
     return atlas, truth, bands, blurred, BLUR_TEXELS * texel_mm
 
