@@ -479,7 +479,7 @@ def register(subparsers) -> None:
                     "frames), 'polarbssrdf reconstruct' (static, dynamic and biophysical "
                     "stages, one camera held out), the evaluation of every stage against the "
                     "truth (OUTDIR/metrics.json) and OUTDIR/report.html. The defaults take "
-                    "about 3 minutes on 2 cores.")
+                    "about 10 minutes on 2 cores (bench/RESULTS.md).")
     parser.add_argument("outdir", type=Path, metavar="OUTDIR",
                         help="demo directory: new or empty, or an earlier demo with --resume "
                              "or --overwrite")

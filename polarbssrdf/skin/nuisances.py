@@ -16,15 +16,16 @@ NUISANCES = ("thickness_mm", "gamma", "eta")
 """The skin's other unknowns: epidermal thickness (mm), the blood's oxygen fraction and the
 refractive index."""
 
-DEFAULT_NUISANCE_STD = {"thickness_mm": 0.01, "gamma": 0.02, "eta": 0.015}
-"""Within-face spread of the nuisance maps. Thickness (mm): a stated guess at the low end of
-high-frequency ultrasound's spread between facial sites (site means 0.17-0.22 mm over eight
-sites, about 0.018 mm as a standard deviation; Meng et al., BMC Medical Imaging 22:113,
-2022). synth's faces vary by 0.025 mm, and on the demo's first frame the fit told 0.025 mm
-and 0.03 covers C_h_in at 0.91 where these defaults cover it at 0.78 (bench/RESULTS.md,
-2026-12-04): set ``nuisance_std`` where a capture's skin is known to vary more. Oxygenation: a stated
-guess (regions at rest differ by a few percent). Index: the static stage's typical error
-(demo: MAE 0.013)."""
+DEFAULT_NUISANCE_STD = {"thickness_mm": 0.018, "gamma": 0.02, "eta": 0.015}
+"""Within-face spread of the nuisance maps. Thickness (mm): the spread between facial sites
+that high-frequency ultrasound measures (site means 0.17-0.22 mm over eight sites, about
+0.018 mm as a standard deviation; Meng et al., BMC Medical Imaging 22:113, 2022). It was a
+guess at that spread's low end, 0.01 mm, until 2026-12-07: on the demo's first frame (synth
+varies its faces by 0.025 mm) C_h_in's 2-std coverage was 0.879 with it and is 0.922 with
+the measured spread; faces that vary less get a wider std than their error
+(bench/RESULTS.md). Set ``nuisance_std`` where a capture's skin is known to vary otherwise.
+Oxygenation: a stated guess (regions at rest differ by a few percent). Index: the static
+stage's typical error (demo: MAE 0.013)."""
 
 DEFAULT_NUISANCE_MEAN = {"thickness_mm": [0.25, 0.05], "gamma": [0.75, 0.08]}
 """``[mean, std]`` of a face's thickness (mm) and oxygenation: the skin model's values (Donner

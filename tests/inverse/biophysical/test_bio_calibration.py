@@ -33,37 +33,48 @@ FACES = range(6)
 
 MISSED_MAE = {
     (0, "C_m"): 0.89, (0, "beta_m"): 4.15, (0, "C_h_out"): 0.59, (0, "C_h_in"): 3.78,
-    (1, "beta_m"): 1.025, (1, "C_h_in"): 0.59,
+    (1, "beta_m"): 1.025, (1, "C_h_in"): 0.63,
     (2, "C_m"): 0.98, (2, "beta_m"): 2.32, (2, "C_h_out"): 0.51, (2, "C_h_in"): 3.71,
-    (3, "beta_m"): 1.35, (3, "C_h_in"): 0.92,
+    (3, "beta_m"): 1.43, (3, "C_h_in"): 1.00,
     (4, "C_m"): 1.06, (4, "beta_m"): 2.30, (4, "C_h_out"): 0.69, (4, "C_h_in"): 4.67,
-    (5, "C_h_in"): 0.81,
+    (5, "C_h_in"): 0.94,
 }
-"""MAE / constant map's MAE where it is over the figure (2026-12-04)."""
+"""MAE / constant map's MAE where it is over the figure (2026-12-04, unless
+:data:`MAE_MEASURED_ON` says otherwise)."""
+
+MAE_MEASURED_ON = {(1, "beta_m"): "2026-12-06", (1, "C_h_in"): "2026-12-07",
+                   (3, "beta_m"): "2026-12-07", (3, "C_h_in"): "2026-12-07", (5, "C_h_in"): "2026-12-07"}
+"""MAE misses measured later than 2026-12-04: on the cheeks the local-feature prior
+(:func:`~polarbssrdf.inverse.biophysical.prior.feature_coupling`) frees every map at the
+freckles and the blood patches' edges (bench/RESULTS.md, 2026-12-06). The cheeks' figures
+that moved with it were measured again on 2026-12-07 (0.59, 1.35, 0.92 and 0.81 on
+2026-12-04)."""
 
 MISSED_COVERAGE = {
-    (0, "beta_m"): 0.798, (0, "C_h_in"): 0.886,
-    (1, "beta_m"): 0.727,
-    (2, "beta_m"): 0.996, (2, "C_h_in"): 0.983,
-    (3, "beta_m"): 0.542, (3, "C_h_in"): 0.837,
-    (5, "beta_m"): 0.727, (5, "C_h_in"): 0.891,
+    (0, "beta_m"): 0.834,
+    (1, "beta_m"): 0.740,
+    (2, "beta_m"): 0.992, (2, "C_h_out"): 0.981, (2, "C_h_in"): 0.998,
+    (3, "beta_m"): 0.566, (3, "C_h_in"): 0.863,
+    (4, "C_h_in"): 0.987,
+    (5, "beta_m"): 0.745,
 }
-"""2-std coverage where it is outside [0.90, 0.98] (2026-12-04)."""
+"""2-std coverage where it is outside [0.90, 0.98] (2026-12-07). Since the fit's within-face
+thickness spread is the measured 0.018 mm (:data:`~polarbssrdf.skin.nuisances.DEFAULT_NUISANCE_STD`,
+0.01 mm before), these faces, which vary by 0.01 mm, get a std wider than their error where
+the thickness moves a map: face 0's and face 5's C_h_in reach the figure (0.886 and 0.891
+before), face 2's C_h_out and face 4's C_h_in, inside the window before, cover a little more than
+0.98 of their errors (bench/RESULTS.md, 2026-12-07)."""
 
-MEASURED_ON = {(1, "beta_m"): "2026-12-06", (5, "C_h_in"): "2026-12-06"}
-"""Misses measured later than 2026-12-04: on the cheeks the local-feature prior
-(:func:`~polarbssrdf.inverse.biophysical.prior.feature_coupling`) frees every map at the
-freckles and the blood patches' edges (face 1's beta_m and face 5's C_h_in coverage met the
-figures before it; bench/RESULTS.md, 2026-12-06)."""
+COVERAGE_MEASURED_ON = "2026-12-07"
 
 
-def _cases(missed, what):
+def _cases(missed, what, measured_on=None, default="2026-12-04"):
     cases = []
     for face in FACES:
         for name in PARAMETERS:
             marks = ()
             if (face, name) in missed:
-                measured = MEASURED_ON.get((face, name), "2026-12-04")
+                measured = (measured_on or {}).get((face, name), default)
                 marks = pytest.mark.xfail(strict=True, reason=f"{what} {missed[face, name]} ({measured})")
             cases.append(pytest.param(face, name, marks=marks, id=f"face{face}-{name}"))
     return cases
@@ -99,14 +110,14 @@ def fitted(face):
     return _FITS[face]
 
 
-@pytest.mark.parametrize("face,name", _cases(MISSED_MAE, "MAE / constant map's"))
+@pytest.mark.parametrize("face,name", _cases(MISSED_MAE, "MAE / constant map's", MAE_MEASURED_ON))
 def test_unseen_faces_beat_the_constant_map(face, name):
     _, scores = fitted(face)
     score = scores[name]
     assert score["mae_of_range"] <= LIMITS[name] * score["constant_mae_of_range"]
 
 
-@pytest.mark.parametrize("face,name", _cases(MISSED_COVERAGE, "2-std coverage"))
+@pytest.mark.parametrize("face,name", _cases(MISSED_COVERAGE, "2-std coverage", default=COVERAGE_MEASURED_ON))
 def test_unseen_faces_have_calibrated_std(face, name):
     _, scores = fitted(face)
     low, high = COVERAGE
