@@ -13,7 +13,7 @@ else. With the face values unknown no face meets the figures either
 
 Thresholds are issue 31's: MAE at most 0.5 of the constant map's for C_m, C_h_out and
 C_h_in, at most the constant map's for beta_m; 2-std coverage in [0.90, 0.98]. Where a face
-misses one (measured on 2026-12-04 at 34099ce), the case is a strict expected failure that
+misses one (measured on the date its list gives), the case is a strict expected failure that
 names the measured figure, so a change that reaches it shows as an unexpected pass. What
 limits them is in docs/biophysical.md: the oxygenation and thickness within the face and
 the index error, which six bands cannot tell from the chromophores, and beta_m's spread,
