@@ -71,6 +71,18 @@ reached slope 0.56 of the truth's in 150 epochs at 2e-3 and 0.83 in 600; 8e-3 re
 in 150.
 """
 
+SOBOLEV_LENGTHS = {"displacement": 8.0, "eta": 0.0, "rho_s": 0.0, "alpha_s": 0.0, "rho_ss": 0.0,
+                   "alpha_ss": 0.0}
+"""Smoothing length (texels) of each map's Sobolev-preconditioned gradient
+(:mod:`polarbssrdf.inverse.polarimetric.preconditioning`; 0: the plain gradient).
+
+The displacement's 8 texels: on the demo's capture at seed 1 (256^2, 150 epochs) the relief's
+slope on the truth went from 0.53 to 1.08 (correlation 0.78 to 0.94) and its MAE from 0.68 to
+0.36 of the constant map's; 4, 8 and 16 texels gave 0.357, 0.358 and 0.362 (bench/RESULTS.md,
+2026-12-07). The glossy maps stay at 0: at 4 texels eta and alpha_s improved (0.46 -> 0.43 and
+0.47 -> 0.40 of the constant map's MAE), at 8 alpha_s's 2-std coverage fell from 0.97 to 0.55.
+"""
+
 OPTIMIZERS = ("rmsprop", "adam")
 """The ``drjit.opt`` optimizers the stages can use."""
 
@@ -111,6 +123,11 @@ class StaticConfig:
         ``"adam"`` (``drjit.opt.Adam``, beta_1 0.9, beta_2 0.999).
     gradient_clip : float
         Maximum global gradient norm (the authors' 2.0).
+    sobolev_lengths : dict
+        Per map, the smoothing length (texels) of its Sobolev-preconditioned
+        gradient, ``(I + length^2 L)^-1 g`` (:data:`SOBOLEV_LENGTHS`; 0 steps
+        the plain gradient). It changes how fast the long wavelengths
+        converge, not where the minimum is.
     final_learning_rate : float
         The learning rates decay exponentially over the epochs to this
         fraction of their start values. RMSProp steps a texel by about its
@@ -177,6 +194,7 @@ class StaticConfig:
     optimizer: str = "rmsprop"
     gradient_clip: float = 2.0
     final_learning_rate: float = 0.1
+    sobolev_lengths: dict = dataclasses.field(default_factory=lambda: dict(SOBOLEV_LENGTHS))
     specular_half_cosine: float = 0.86
     separate_lobes: bool = False
     photometric_noise: float = 0.01
@@ -201,7 +219,8 @@ class StaticConfig:
         _positive_int(self.min_steps_per_epoch, "min_steps_per_epoch")
         _positive_int(self.min_views, "min_views")
         _positive_int(self.seed, "seed", minimum=0)
-        for key, table in (("weights", STATIC_WEIGHTS), ("learning_rates", LEARNING_RATES)):
+        for key, table in (("weights", STATIC_WEIGHTS), ("learning_rates", LEARNING_RATES),
+                           ("sobolev_lengths", SOBOLEV_LENGTHS)):
             values = getattr(self, key)
             _known_keys(values, table, key)
             for name, value in values.items():
@@ -327,7 +346,8 @@ def merged_config(overrides=None, **changes) -> StaticConfig:
             raise ValueError(f"config: unknown key(s) {unknown}; known: "
                              f"{sorted(f.name for f in dataclasses.fields(StaticConfig))}")
         for key, value in source.items():
-            if key in ("weights", "bounds", "initial", "learning_rates", "dynamic", "bio"):
+            if key in ("weights", "bounds", "initial", "learning_rates", "sobolev_lengths",
+                       "dynamic", "bio"):
                 if not isinstance(value, dict):
                     raise ValueError(f"config: {key} must be an object, got {json_type(value)}")
                 merged = dict(data.get(key) or getattr(StaticConfig(), key))

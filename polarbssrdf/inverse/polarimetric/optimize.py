@@ -54,6 +54,7 @@ from polarbssrdf.geometry.height import (
 from polarbssrdf.inverse.polarimetric.config import OPTIMIZED
 from polarbssrdf.inverse.polarimetric.losses import DATA_TERMS, data_loss_terms
 from polarbssrdf.inverse.polarimetric.model import half_vector_cosine, jit_types, predict_stokes
+from polarbssrdf.inverse.polarimetric.preconditioning import sobolev_gradient
 from polarbssrdf.inverse.polarimetric.regularizers import (
     displacement_laplacian,
     displacement_magnitude,
@@ -622,8 +623,10 @@ def patch_gradients(params, prepared, config, weights, solve_albedo=True):
     Dr.Jit's reverse pass differentiates the data terms down to the per
     texel-view leaves; their gradients are summed per texel, the temporal
     terms' and the regularizers' own gradients added, and the result set as
-    the gradient of every optimized map (zero outside the window). See
-    :func:`texel_view_terms` for ``solve_albedo``.
+    the gradient of every optimized map (zero outside the window), Sobolev-
+    preconditioned where ``config.sobolev_lengths`` asks
+    (:mod:`polarbssrdf.inverse.polarimetric.preconditioning`; ``window_gradient``
+    keeps the plain gradient). See :func:`texel_view_terms` for ``solve_albedo``.
     """
     loss = patch_losses(params, prepared, config, weights, solve_albedo, differentiable=True)
     # with every data weight 0 (a regularizer alone) nothing is attached: not an error
@@ -636,7 +639,12 @@ def patch_gradients(params, prepared, config, weights, solve_albedo=True):
     squared = 0.0
     for name in params.optimized:
         window = np.asarray(gradients.get(name, np.zeros(len(prepared.window_index))))
+        # the clip reads the loss's own steepness, before the preconditioner reshapes the step
         squared += float(np.sum(window * window))
+        length = float(config.sobolev_lengths.get(name, 0.0))
+        if length > 0.0:
+            window = sobolev_gradient(window.reshape(prepared.window_valid.shape), length,
+                                      prepared.window_valid).ravel()
         full = dr.zeros(Float, T * T)
         # the window's texels are distinct: a plain scatter
         dr.scatter(full, to_jit(Float, window, np.float32), prepared.window_index_jit)

@@ -46,7 +46,9 @@ def problem():
              for k in ("eta", "rho_s", "alpha_s", "rho_ss", "alpha_ss")}
     start["alpha_ss"] = np.clip(start["alpha_ss"], 0.7, 1.0)
     start["displacement"] = rng.normal(0, 0.05, (T, T)).astype(np.float32)
-    config = static_config(patch_size=16, min_cosine=0.2)
+    # the loss's own gradient: the Sobolev preconditioner's step is checked separately below
+    config = static_config(patch_size=16, min_cosine=0.2,
+                           sobolev_lengths={name: 0.0 for name in OPTIMIZED})
     prepared = prepare_patch(store, atlas, texture_patches(T, 16, 8)[0])
     return atlas, store, start, rho_sss * 0.97, config, prepared
 
@@ -107,6 +109,32 @@ def test_gradients_match_central_differences(problem, term):
             numeric = (shifted[0] - shifted[1]) / (2 * step)
             assert analytic[texel] == pytest.approx(numeric, rel=0.01, abs=0.01 * scale / step), \
                 (term, name, texel)
+
+
+def test_the_stepped_gradient_is_the_loss_gradient_preconditioned(problem):
+    """With a smoothing length the optimizer steps ``(I + l^2 L)^-1`` of the loss's gradient on
+    the window (zero off the mesh); a map without one steps the plain gradient."""
+    import dataclasses
+
+    from polarbssrdf.inverse.polarimetric.preconditioning import sobolev_gradient
+
+    atlas, store, start, rho_sss, config, prepared = problem
+    plain = _gradient(start, rho_sss, config, prepared, "sss")
+    lengths = dict(config.sobolev_lengths, displacement=3.0)
+    smoothed = _gradient(start, rho_sss, dataclasses.replace(config, sobolev_lengths=lengths),
+                         prepared, "sss")
+
+    def grad(params, name):
+        return np.array(dr.grad(params.optimizer[name]), dtype=np.float64)
+
+    expected = sobolev_gradient(grad(plain, "displacement")[prepared.window_rows,
+                                                             prepared.window_cols],
+                                3.0, prepared.window_valid)
+    window = grad(smoothed, "displacement")[prepared.window_rows, prepared.window_cols]
+    assert window == pytest.approx(expected, rel=1e-5, abs=1e-6 * np.max(np.abs(expected)))
+    assert not np.allclose(window, grad(plain, "displacement")[prepared.window_rows,
+                                                                prepared.window_cols])
+    assert np.array_equal(grad(smoothed, "eta"), grad(plain, "eta"))
 
 
 def test_closed_form_albedo_is_the_least_squares_solution(problem):
