@@ -6,8 +6,9 @@ wavelengths (the relief's bowl and slant over the face, a roughness level
 shared by a cheek) then converge slowly: the data term's gradient of a
 smooth change is small per texel and shares each texel's step with the
 texel-scale misfit, whose sign changes from texel to texel. On the demo's
-face the relief reached half the truth's amplitude in 150 epochs and more
-in 400 (bench/RESULTS.md, 2026-12-07): the relief's "flattening" was the
+face the relief reached half the truth's amplitude in 150 epochs, and 400
+epochs took its error from 0.68 to 0.51 of the constant map's
+(bench/RESULTS.md, 2026-12-07): the relief's "flattening" was the
 optimizer stopping short, not the data.
 
 The remedy is the Sobolev gradient (Neuberger, *Sobolev Gradients and
@@ -23,8 +24,10 @@ to mesh vertices in "Large Steps in Inverse Rendering of Geometry" (ACM
 Trans. Graph. 40(6), 248, 2021), here on a texture grid and applied to the
 gradient (one solve per step) rather than by re-parameterizing the map.
 
-The minimum is unchanged: the preconditioner is symmetric positive definite,
-so ``g_S = 0`` exactly where ``g = 0``. Only the path and its speed change.
+The minimum is unchanged: the preconditioner is symmetric positive definite
+(and so is its restriction to the texels on the mesh, where alone ``g`` is
+non-zero), so ``g_S = 0`` exactly where ``g = 0``. Only the path and its
+speed change.
 
 The solve is exact on a patch's window (a rectangle of texels) with
 reflecting (Neumann) edges, by the type-II discrete cosine transform, which
