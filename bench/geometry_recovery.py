@@ -11,7 +11,9 @@ and prints, beside the issue's targets:
 * the transfer curve: gain and correlation per octave of spatial scale;
 * the same inside the wrinkles alone (texels where the relief carves > 0.03 mm).
 
-Usage: ``python bench/geometry_recovery.py [--workdir DIR] [--texture 512] [--seed 7]``.
+Usage: ``python bench/geometry_recovery.py [--workdir DIR] [--texture 512] [--seed 7]
+[--face-level-start]``; the last fits the glossy maps' face levels before the epochs
+(``face_level_evaluations`` 12, off by default: docs/reconstruct.md, "Face levels first").
 About 8 minutes on 2 cores at 512^2.
 """
 
@@ -41,10 +43,13 @@ def main():
     parser.add_argument("--workdir", default="bench_out/geometry")
     parser.add_argument("--texture", type=int, default=512)
     parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--face-level-start", action="store_true",
+                        help="start the epochs at the glossy maps' fitted face levels")
     args = parser.parse_args()
     work = Path(args.workdir)
     capture = work / f"face_{args.texture}_seed{args.seed}"
-    result = work / f"result_{args.texture}_seed{args.seed}"
+    tag = f"{args.texture}_seed{args.seed}" + ("_face_start" if args.face_level_start else "")
+    result = work / f"result_{tag}"
     timings = {}
     if not (capture / "capture.json").exists():
         started = time.perf_counter()
@@ -53,9 +58,15 @@ def main():
                     "--overwrite")
         timings["synth_s"] = time.perf_counter() - started
     started = time.perf_counter()
-    polarbssrdf("reconstruct", capture, result, "--stages", "static", "--overwrite", "--quiet")
+    settings = []
+    if args.face_level_start:
+        config = work / "face_level_start.json"
+        config.write_text(json.dumps({"face_level_evaluations": 12}))
+        settings = ["--config", config]
+    polarbssrdf("reconstruct", capture, result, "--stages", "static", "--overwrite", "--quiet",
+                *settings)
     timings["static_s"] = time.perf_counter() - started
-    evaluation = work / f"evaluation_{args.texture}_seed{args.seed}.json"
+    evaluation = work / f"evaluation_{tag}.json"
     evaluation.unlink(missing_ok=True)
     polarbssrdf("evaluate", result, "--out", evaluation)
     scores = json.loads(evaluation.read_text())["maps"]
@@ -71,7 +82,8 @@ def main():
     slope = float(np.polyfit(true_height[scored], height[scored], 1)[0])
     normal = scores["normal"]
     ratio = normal["mean_deg"] / normal["base_mesh_mean_deg"]
-    print(f"face {args.texture}^2, seed {args.seed}: {json.dumps(timings)}")
+    print(f"face {args.texture}^2, seed {args.seed}"
+          f"{', face-level start' if args.face_level_start else ''}: {json.dumps(timings)}")
     print(f"  normal error {normal['mean_deg']:.3f} deg mean (base mesh {normal['base_mesh_mean_deg']:.3f}): "
           f"{ratio:.2f}x (target <= {NORMAL_RATIO_TARGET})")
     print(f"  displacement slope on the truth {slope:.3f} (target {SLOPE_TARGET[0]}-{SLOPE_TARGET[1]}); "

@@ -123,6 +123,18 @@ class StaticConfig:
         ``"adam"`` (``drjit.opt.Adam``, beta_1 0.9, beta_2 0.999).
     gradient_clip : float
         Maximum global gradient norm (the authors' 2.0).
+    face_level_evaluations : int
+        Before the per-texel epochs, a run from the constant start may fit one
+        face-wide value of each glossy map by Levenberg-Marquardt with the
+        displacement held and ``rho_sss`` solved per texel
+        (:func:`polarbssrdf.inverse.polarimetric.face_level.fit_face_levels`),
+        in at most this many passes over the patches; 0 (the default) starts
+        from ``initial`` as the authors' code does. On a wrinkled 512^2 face
+        12 took the glossy maps from 1.7-4.9 times the constant map's error to
+        1.00-1.01 (``alpha_ss`` excepted) and the displacement from 0.78 to
+        0.36; on the demo's 256^2 captures it made ``rho_ss`` worse (1.06 ->
+        1.56 and 1.07 -> 3.42 at seeds 0 and 1) and the displacement too (0.37
+        -> 0.54 at seed 0), so it is off by default (bench/RESULTS.md).
     sobolev_lengths : dict
         Per map, the smoothing length (texels) of its Sobolev-preconditioned
         gradient, ``(I + length^2 L)^-1 g`` (:data:`SOBOLEV_LENGTHS`; 0 steps
@@ -195,6 +207,7 @@ class StaticConfig:
     gradient_clip: float = 2.0
     final_learning_rate: float = 0.1
     sobolev_lengths: dict = dataclasses.field(default_factory=lambda: dict(SOBOLEV_LENGTHS))
+    face_level_evaluations: int = 0
     specular_half_cosine: float = 0.86
     separate_lobes: bool = False
     photometric_noise: float = 0.01
@@ -218,6 +231,7 @@ class StaticConfig:
         _positive_int(self.patch_size, "patch_size", minimum=8)
         _positive_int(self.min_steps_per_epoch, "min_steps_per_epoch")
         _positive_int(self.min_views, "min_views")
+        _positive_int(self.face_level_evaluations, "face_level_evaluations", minimum=0)
         _positive_int(self.seed, "seed", minimum=0)
         for key, table in (("weights", STATIC_WEIGHTS), ("learning_rates", LEARNING_RATES),
                            ("sobolev_lengths", SOBOLEV_LENGTHS)):

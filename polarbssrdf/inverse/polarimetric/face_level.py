@@ -17,17 +17,19 @@ map's error.) Such a map is replaced by one value for the whole face (a
 constant on every texel), recorded as held: the scatter of a map the views
 cannot resolve only adds ``mean(v)`` to its squared error.
 
-The face's value is not the mean of the scattered map: a map the views
-barely see stays near the optimizer's start (on a 12-view sphere
-``alpha_s`` ended at 0.35-0.37 from a start of 0.35 for a truth of 0.40).
-It is a Gauss-Newton step on the constant (:func:`face_level_step`): the
-data's information about one value shared by every confident texel is the
-sum of each texel's, ``sum_i d_i``, large even where each ``d_i`` is small,
-with each texel's other parameters marginalized (a Schur complement of its
-information, :mod:`polarbssrdf.inverse.polarimetric.posterior`). Its std
-becomes the fitted map's own spread, ``sqrt(var(x))``: an upper bound on the
-truth's spread about the face's value, since the data could not measure
-the spread itself.
+The face's value is the fitted map's mean over the confident texels. Until
+2026-12-07 it was a Gauss-Newton step on the constant whose gradient was
+wrong (:func:`polarbssrdf.inverse.polarimetric.posterior.texel_information`
+read a Jacobian where the residuals belong); with that fixed, the step (each
+texel's slopes marginalized) and a Levenberg-Marquardt refit of the constant
+(:func:`fit_face_levels`, the displacement and the other maps held) both made
+the level worse: on a wrinkled 512^2 face (the fit started at the face
+levels) they moved ``rho_s`` from 0.799 to 0.770 and 0.764, ``rho_ss`` from
+0.304 to 0.338 and 0.334, for truths of 0.790 and 0.299 (the best constant
+of a nonlinear model is not the mean of a varying truth; bench/RESULTS.md).
+Its std becomes the fitted map's own spread, ``sqrt(var(x))``: an upper
+bound on the truth's spread about the face's value, since the data could
+not measure the spread itself.
 
 On the demo face (bench/RESULTS.md) this holds ``rho_s``, ``rho_ss`` and
 ``alpha_ss`` and leaves ``eta`` and ``alpha_s``, whose fitted spread exceeds
@@ -37,13 +39,26 @@ the noise's.
 from __future__ import annotations
 
 import numpy as np
+from tqdm import tqdm
 
 from polarbssrdf._arrays import to_jit
 from polarbssrdf.inverse.polarimetric.model import GLOSSY_PARAMETERS
-from polarbssrdf.inverse.polarimetric.posterior import prior_precisions, texel_information
+from polarbssrdf.inverse.polarimetric.optimize import texel_view_terms
+from polarbssrdf.inverse.polarimetric.posterior import (
+    TANGENTS,
+    prior_precisions,
+    texel_information,
+)
 
 FALLBACK_MAPS = GLOSSY_PARAMETERS
 """Maps that may fall back to the face's level (``rho_sss`` and the displacement always vary)."""
+
+START_DAMPING = 1e-3
+"""Levenberg-Marquardt's first damping, relative to the information's diagonal (Marquardt 1963)."""
+
+START_TOLERANCE = 1e-5
+""":func:`fit_face_levels` stops when an accepted step lowers the chi-square by less than this
+fraction."""
 
 
 def resolved_spread(values, std):
@@ -89,60 +104,133 @@ def set_constant_maps(params, values):
         params.optimizer[name] = to_jit(params.TensorXf, variables[name], np.float32)
 
 
-def face_level_step(params, cache, patches, config, weights, noise, names, confident):
-    """One Gauss-Newton step on the face's value of each map of ``names`` (held constant).
+def face_level_system(params, cache, patches, config, weights, noise, names, texels):
+    """The data's chi-square, gradient and Gauss-Newton information about one value per map of
+    ``names`` shared by the ``texels`` (T, T bool) of every patch.
 
-    Sums, over the ``confident`` texels (T, T) of every patch, each texel's
-    information and gradient about the held values with its other
-    parameters marginalized, and returns ``{map: new value}`` within the
-    map's bounds.
+    Each texel's ``rho_sss`` per band is marginalized (a Schur complement of its information,
+    :func:`polarbssrdf.inverse.polarimetric.posterior.texel_information`); its other glossy
+    maps and its slopes keep their current values. Each ``rho_sss`` carries its uniform
+    prior (:func:`~polarbssrdf.inverse.polarimetric.posterior.prior_precisions`), a shared
+    value its prior once. Returns ``(chi_square, gradient, information)``: a float,
+    (len(names),) and (len(names), len(names)), the gradient that of half the chi-square.
     """
-    held = [GLOSSY_PARAMETERS.index(name) for name in names]
+    held = [TANGENTS.index(name) for name in names]
     information = np.zeros((len(held), len(held)))
     gradient = np.zeros(len(held))
-    flat_confident = np.asarray(confident, bool).ravel()
+    chi_square = 0.0
+    flat_texels = np.asarray(texels, bool).ravel()
     for patch in patches:
         prepared = cache.get(patch)
         if len(prepared) == 0:
             continue
-        texel_info, texel_gradient, _ = texel_information(params, prepared, config, weights,
-                                                          noise)
+        texel_info, texel_gradient, _, texel_chi_square = texel_information(
+            params, prepared, config, weights, noise)
         interior = prepared.stencils.interior.ravel() > 0
-        use = interior & flat_confident[prepared.window_index]
+        use = interior & flat_texels[prepared.window_index]
         if not use.any():
             continue
-        matrix = texel_info[use] + np.diag(prior_precisions(config, len(prepared.observed)))[None]
+        chi_square += float(np.sum(texel_chi_square[use]))
+        albedos = list(range(len(TANGENTS), texel_info.shape[1]))
+        prior = prior_precisions(config, len(prepared.observed))[albedos]
+        m_aa = texel_info[use][:, albedos][:, :, albedos] + np.diag(prior)[None]
+        m_ha = texel_info[use][:, held][:, :, albedos]
         vector = texel_gradient[use]
-        others = [k for k in range(matrix.shape[1]) if k not in held]
-        m_oo = matrix[:, others][:, :, others]
-        m_ho = matrix[:, held][:, :, others]
-        solved = np.linalg.solve(m_oo, np.concatenate(
-            [np.swapaxes(m_ho, 1, 2), vector[:, others, None]], axis=2))
-        information += np.sum(matrix[:, held][:, :, held]
-                              - np.einsum("nhk,nkj->nhj", m_ho, solved[:, :, :len(held)]), axis=0)
-        gradient += np.sum(vector[:, held] - np.einsum("nhk,nk->nh", m_ho, solved[:, :, -1]),
+        solved = np.linalg.solve(m_aa, np.concatenate(
+            [np.swapaxes(m_ha, 1, 2), vector[:, albedos, None]], axis=2))
+        information += np.sum(texel_info[use][:, held][:, :, held]
+                              - np.einsum("nhk,nkj->nhj", m_ha, solved[:, :, :len(held)]), axis=0)
+        gradient += np.sum(vector[:, held] - np.einsum("nhk,nk->nh", m_ha, solved[:, :, -1]),
                            axis=0)
-    step = -np.linalg.solve(information, gradient)
+    information += np.diag(prior_precisions(config, 0)[held])
+    return chi_square, gradient, information
+
+
+def solve_albedos(params, cache, patches, config):
+    """Re-solve ``rho_sss`` on every patch in closed form for the current glossy maps (eq. 27)."""
+    for patch in patches:
+        prepared = cache.get(patch)
+        if len(prepared):
+            texel_view_terms(params, prepared, config, solve_albedo=True)
+
+
+def fit_face_levels(params, cache, patches, config, weights, names, texels, evaluations,
+                    progress=False, description="face levels"):
+    """Levenberg-Marquardt on one value per map of ``names`` shared by the ``texels`` (T, T bool),
+    ``rho_sss`` solved per texel and every other map held: the fit's coarsest level.
+
+    From a constant start the per-texel RMSProp steps of the fit cross the
+    valleys between ``eta``, the lobes' albedos and their roughnesses slowly
+    and can settle in the wrong one: on a wrinkled 512^2 face (each texel 150
+    steps) ``rho_ss`` ended at 0.37 for a truth of 0.30 and ``eta`` at 1.477 for
+    1.422, 2-5 times the constant map's error; from this start they end at
+    1.00-1.01 times it. (On the demo's 256^2 captures this start made
+    ``rho_ss`` worse, 1.06 -> 1.56 and 1.07 -> 3.42 times: the fit runs it only
+    when ``config.face_level_evaluations`` > 0.) Five numbers shared by the face
+    are a small least-squares problem in which the Gauss-Newton model sees
+    those valleys: each evaluation re-solves ``rho_sss`` (a variable
+    projection, Golub and Pereyra 1973) and sums every texel's information
+    about the shared values (:func:`face_level_system`; at the start the
+    slopes are 0).
+    Steps solve ``(H + lambda diag H) d = -g`` (Marquardt 1963), clipped to the
+    bounds; a step that raises the chi-square is retried with ``lambda`` x10,
+    an accepted one divides it by 3.
+
+    ``evaluations`` bounds the passes over the patches (one per tried step);
+    the iteration also stops when an accepted step gains less than
+    :data:`START_TOLERANCE`. Leaves the maps at the best values, with their
+    ``rho_sss``, and returns ``{"values", "chi_square", "evaluations"}``
+    (``chi_square`` the accepted values' history, in units of
+    ``config.photometric_noise``).
+    """
+    texels = np.asarray(texels, bool)
     current = params.to_numpy()
-    values = {}
-    for name, delta in zip(names, step):
-        low, high = config.bounds[name]
-        level = float(np.mean(current[name][np.asarray(confident, bool)]))
-        values[name] = float(np.clip(level + delta, low, high))
-    return values
+    values = {name: float(np.mean(current[name][texels])) for name in names}
+    noise = config.photometric_noise
+
+    def evaluate(candidate):
+        set_constant_maps(params, candidate)
+        solve_albedos(params, cache, patches, config)
+        return face_level_system(params, cache, patches, config, weights, noise, names, texels)
+
+    chi_square, gradient, information = evaluate(values)
+    best_albedo = params.rho_sss.copy()
+    history, used, damping = [chi_square], 1, START_DAMPING
+    with tqdm(total=evaluations, initial=1, desc=description, unit="pass",
+              disable=not progress) as bar:
+        while used < evaluations:
+            # the ridge keeps a value no texel sees (a zero row) from making the system singular
+            ridge = 1e-12 * max(float(np.trace(information)), 1e-300)
+            damped = (information + damping * np.diag(np.diag(information))
+                      + ridge * np.eye(len(names)))
+            step = -np.linalg.solve(damped, gradient)
+            candidate = {name: float(np.clip(values[name] + delta, *config.bounds[name]))
+                         for name, delta in zip(names, step)}
+            trial = evaluate(candidate)
+            used += 1
+            bar.update()
+            if trial[0] < chi_square:
+                gain = (chi_square - trial[0]) / max(chi_square, 1e-300)
+                values, (chi_square, gradient, information) = candidate, trial
+                best_albedo = params.rho_sss.copy()
+                history.append(chi_square)
+                damping /= 3.0
+                if gain < START_TOLERANCE:
+                    break
+            else:
+                damping *= 10.0
+    set_constant_maps(params, values)
+    params.rho_sss[...] = best_albedo
+    return {"values": {name: round(value, 6) for name, value in values.items()},
+            "chi_square": [round(value, 3) for value in history], "evaluations": used}
 
 
-def hold_at_face_level(params, cache, patches, config, weights, noise, held, confident, steps=1):
-    """Set the ``held`` maps (:func:`unresolved_maps`) to the face's value: their mean, then
-    ``steps`` Gauss-Newton steps (:func:`face_level_step`). Records each map's ``level``."""
-    names = list(held)
-    set_constant_maps(params, {name: held[name]["mean"] for name in names})
-    for _ in range(steps):
-        set_constant_maps(params, face_level_step(params, cache, patches, config, weights,
-                                                  noise, names, confident))
-    maps = params.to_numpy()
-    for name in names:
-        held[name]["level"] = float(maps[name].flat[0])
+def hold_at_face_level(params, held):
+    """Set the ``held`` maps (:func:`unresolved_maps`) to their fitted mean on every texel;
+    records it as each map's ``level``."""
+    set_constant_maps(params, {name: held[name]["mean"] for name in held})
+    for name in held:
+        held[name]["level"] = held[name]["mean"]
     return held
 
 

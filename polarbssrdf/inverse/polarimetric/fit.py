@@ -55,9 +55,10 @@ from tqdm import tqdm
 
 from polarbssrdf.geometry.height import normals_from_height
 from polarbssrdf.inverse.polarimetric.config import OPTIMIZED
-from polarbssrdf.inverse.polarimetric.model import half_vector_cosine
+from polarbssrdf.inverse.polarimetric.model import GLOSSY_PARAMETERS, half_vector_cosine
 from polarbssrdf.inverse.polarimetric.face_level import (
     FALLBACK_MAPS,
+    fit_face_levels,
     held_std_channels,
     hold_at_face_level,
     unresolved_maps,
@@ -98,7 +99,12 @@ class StageResult:
     path: Path | None = None
     confidence: dict | None = None
     held: dict = dataclasses.field(default_factory=dict)
-    """Maps held at the face's level (:func:`polarbssrdf.inverse.polarimetric.face_level.hold_unresolved_maps`)."""
+    """Maps held at the face's level
+    (:func:`polarbssrdf.inverse.polarimetric.face_level.hold_at_face_level`)."""
+    face_levels: dict | None = None
+    """The record of the face-level start
+    (:func:`polarbssrdf.inverse.polarimetric.face_level.fit_face_levels`; ``None`` when
+    ``face_level_evaluations`` is 0, for a resumed run and for a run handed its start)."""
 
 
 def initial_parameters(config, texture_size, n_bands, start=None):
@@ -196,10 +202,14 @@ def epoch_noise(config, history):
 
 
 def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, weights=None,
-                  description="fit"):
+                  description="fit", face_levels=()):
     """Run the epochs of a polarimetric stage (resuming from ``checkpoint`` when it exists).
 
-    Returns the loss history (one summary per epoch).
+    A run that starts at epoch 0 first fits one face-wide value of each map of
+    ``face_levels`` (:func:`~polarbssrdf.inverse.polarimetric.face_level.fit_face_levels`,
+    at most ``config.face_level_evaluations`` passes; a resumed run restores its maps
+    instead). Returns ``(history, cache, start)``: the loss history (one summary per
+    epoch), the patch cache and the face-level fit's record (``None`` when not run).
     """
 
     weights = active_weights(config, weights)
@@ -212,6 +222,11 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
         if first > config.iterations:
             raise ValueError(f"checkpoint {checkpoint} holds {first} epochs, more than the "
                              f"{config.iterations} asked for")
+    start = None
+    if first == 0 and face_levels and config.face_level_evaluations > 0:
+        start = fit_face_levels(params, cache, patches, config, weights, tuple(face_levels),
+                                atlas.valid, config.face_level_evaluations, progress,
+                                f"{description}: face levels")
     with tqdm(total=config.iterations, initial=first, desc=description, unit="epoch",
               disable=not progress) as bar:
         for epoch in range(first, config.iterations):
@@ -230,7 +245,7 @@ def optimize_maps(store, atlas, config, params, checkpoint=None, progress=True, 
                 save_checkpoint(checkpoint, params, epoch + 1, history, fingerprint)
             bar.set_postfix(loss=f"{summary.get('total', float('nan')):.3g}")
             bar.update()
-    return history, cache
+    return history, cache, start
 
 
 UNSEEN_PEAK_ANGLE_DEG = 90.0
@@ -488,11 +503,17 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
         for band, name in enumerate(store.bands):
             if f"rho_sss.{name}" in start:
                 rho_sss[band] = np.asarray(start[f"rho_sss.{name}"], np.float32)
+    external_start = params is not None
     if params is None:
         params = MapParameters(maps, rho_sss, config.learning_rates, optimized, config.optimizer,
                                config.initial["eta"] if config.glossy_amplitudes else None)
-    history, cache = optimize_maps(store, atlas, config, params, checkpoint, progress, weights,
-                                   description)
+    # a run from the config's constants may start at the face's levels
+    # (face_level_evaluations); a run handed its start maps (the dynamic frames: the static
+    # maps) starts there
+    face_levels = () if external_start else tuple(
+        name for name in GLOSSY_PARAMETERS if name in optimized and name not in (start or {}))
+    history, cache, face_start = optimize_maps(store, atlas, config, params, checkpoint, progress,
+                                               weights, description, face_levels)
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
     statistics = texel_statistics(params, cache, patches, config)
     confidence = screening_confidence(statistics, params.rho_sss, atlas.valid, config)
@@ -505,8 +526,8 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
     held = unresolved_maps(maps, confident,
                            [name for name in params.optimized if name in FALLBACK_MAPS])
     if held:
-        hold_at_face_level(params, cache, patches, config, weights, noise, held, confident)
+        hold_at_face_level(params, held)
         maps = final_maps(params, atlas, confidence, store.bands, statistics.specular_peak_angle,
                           std)
         held_std_channels(maps, held)
-    return StageResult(maps, history, confidence=summary, held=held)
+    return StageResult(maps, history, confidence=summary, held=held, face_levels=face_start)

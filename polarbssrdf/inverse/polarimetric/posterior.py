@@ -140,10 +140,11 @@ def residual_jacobians(params, prepared, config, weights, noise):
 def texel_information(params, prepared, config, weights, noise):
     """Per window texel, the Gauss-Newton information of the data terms over its parameters.
 
-    Returns ``(information, gradient, usable_counts)``: ``(n_window, P, P)``
-    float64 with ``P = len(TANGENTS) + n_bands`` (the order of
-    :data:`TANGENTS`, then ``rho_sss`` per band), the gradient ``J^T r`` of
-    half the chi-square (n_window, P) and the usable texel-views per texel.
+    Returns ``(information, gradient, usable_counts, chi_square)``:
+    ``(n_window, P, P)`` float64 with ``P = len(TANGENTS) + n_bands`` (the
+    order of :data:`TANGENTS`, then ``rho_sss`` per band), the gradient
+    ``J^T r`` of half the chi-square (n_window, P), the usable texel-views
+    per texel and the chi-square ``sum r^2`` itself per texel (n_window,).
     Derivatives that are not finite (a singular configuration of the model)
     count as 0, as in the fit's gradients.
     """
@@ -155,8 +156,8 @@ def texel_information(params, prepared, config, weights, noise):
     texel = np.asarray(prepared.texel_numpy)
     K = len(TANGENTS)
     P = K + n_bands
-    for name, values in jacobians.items():
-        jacobians[name] = np.where(np.isfinite(values), values, 0.0)
+    for name, derivatives in jacobians.items():
+        jacobians[name] = np.where(np.isfinite(derivatives), derivatives, 0.0)
     information = np.zeros((n_window, P, P))
 
     def per_texel(values):
@@ -176,7 +177,8 @@ def texel_information(params, prepared, config, weights, noise):
         for a in range(K):
             entry = per_texel(np.sum(jacobians[TANGENTS[a]][rows] * albedo[rows], axis=0))
             information[:, a, K + band] = information[:, K + band, a] = entry
-    return information, gradient, per_texel(usable)
+    chi_square = per_texel(np.sum(np.square(values), axis=0))
+    return information, gradient, per_texel(usable), chi_square
 
 
 def prior_precisions(config, n_bands):
@@ -314,7 +316,7 @@ def spatial_variance(observed, data_precision, data_symbol, kappa, stencil, floo
 def patch_posterior_std(params, prepared, config, weights, noise):
     """Posterior std of every map over a patch's window: ``{map or ("rho_sss", band):
     (n_window,)}`` (NaN where the window's texel is off the surface or unseen)."""
-    information, _, counts = texel_information(params, prepared, config, weights, noise)
+    information, _, counts, _ = texel_information(params, prepared, config, weights, noise)
     n_bands = len(prepared.observed)
     prior = prior_precisions(config, n_bands)
     variances, slope_precision = marginal_variances(information, prior)

@@ -54,7 +54,8 @@ def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=
                                   progress=progress, description=label)
     metadata = {"config": config.to_json(), "texel_views": len(store),
                 "seconds": round(time.perf_counter() - start, 3), "variant": mi.variant(),
-                "confidence": result.confidence, "held_at_face_mean": result.held}
+                "confidence": result.confidence, "held_at_face_mean": result.held,
+                "face_level_start": result.face_levels}
     result.path = write_stage_maps(outdir, STAGE, frame, result.maps, metadata)
     write_map_previews(result.maps, stage_dir / "previews", f"f{frame:04d}")
     write_metrics(outdir, STAGE, result.history)
