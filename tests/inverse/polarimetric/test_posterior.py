@@ -44,24 +44,29 @@ def perturbed_patch():
     return params, prepared, config
 
 
+def _offset_residuals(params, prepared, config, weights, tangent, h):
+    """Every residual (R, n_views) with ``h`` added to ``tangent`` on every texel-view (or on
+    every band's ``rho_sss``), at a noise unit of 0.01."""
+    _, leaves = patch_leaves(params, prepared, differentiable=False)
+    T = params.resolution
+    rho_sss = params.rho_sss.reshape(len(params.rho_sss), T * T)[:, prepared.window_index]
+    offset = dr.full(type(leaves["eta"]), h, len(prepared))
+    values, _ = posterior._residuals(
+        params, prepared, config, weights, 0.01, leaves, rho_sss,
+        {} if tangent == "rho_sss" else {tangent: offset},
+        offset if tangent == "rho_sss" else None)
+    return np.stack([np.array(v, np.float64) for v in values])
+
+
 def test_residual_derivatives_match_central_differences(perturbed_patch):
     params, prepared, config = perturbed_patch
     weights = active_weights(config)
     jacobians, _, _, _ = posterior.residual_jacobians(params, prepared, config, weights, 0.01)
-    _, leaves = patch_leaves(params, prepared, differentiable=False)
-    T = params.resolution
-    rho_sss = params.rho_sss.reshape(len(params.rho_sss), T * T)[:, prepared.window_index]
-    Float = type(leaves["eta"])
     steps = {"eta": 1e-3, "rho_s": 1e-3, "alpha_s": 1e-3, "rho_ss": 1e-3, "alpha_ss": 1e-3,
              "dH_du": 1e-3, "dH_dv": 1e-3, "rho_sss": 1e-3}
 
     def residuals(tangent, h):
-        offset = dr.full(Float, h, len(prepared))
-        values, _ = posterior._residuals(
-            params, prepared, config, weights, 0.01, leaves, rho_sss,
-            {} if tangent == "rho_sss" else {tangent: offset},
-            offset if tangent == "rho_sss" else None)
-        return np.stack([np.array(v, np.float64) for v in values])
+        return _offset_residuals(params, prepared, config, weights, tangent, h)
 
     for tangent, h in steps.items():
         difference = (residuals(tangent, h) - residuals(tangent, -h)) / (2 * h)
@@ -83,18 +88,9 @@ def test_the_texel_gradient_and_chi_square_are_those_of_the_residuals(perturbed_
     weights = active_weights(config)
     _, gradient, _, chi_square = posterior.texel_information(params, prepared, config, weights,
                                                              0.01)
-    _, leaves = patch_leaves(params, prepared, differentiable=False)
-    T = params.resolution
-    rho_sss = params.rho_sss.reshape(len(params.rho_sss), T * T)[:, prepared.window_index]
-    Float = type(leaves["eta"])
 
     def half_chi_square(tangent, h):
-        offset = dr.full(Float, h, len(prepared))
-        values, _ = posterior._residuals(
-            params, prepared, config, weights, 0.01, leaves, rho_sss,
-            {} if tangent == "rho_sss" else {tangent: offset},
-            offset if tangent == "rho_sss" else None)
-        values = np.stack([np.array(v, np.float64) for v in values])
+        values = _offset_residuals(params, prepared, config, weights, tangent, h)
         return 0.5 * float(np.sum(np.square(np.where(np.isfinite(values), values, 0.0))))
 
     assert np.sum(chi_square) == pytest.approx(2.0 * half_chi_square("eta", 0.0), rel=1e-9)
