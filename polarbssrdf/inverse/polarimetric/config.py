@@ -128,8 +128,9 @@ class StaticConfig:
         face-wide value of each glossy map by Levenberg-Marquardt with the
         displacement held and ``rho_sss`` solved per texel
         (:func:`polarbssrdf.inverse.polarimetric.face_level.fit_face_levels`),
-        in at most this many passes over the patches; 0 (the default) starts
-        from ``initial`` as the authors' code does. On a wrinkled 512^2 face
+        in at most this many passes over the patches (at least 2: the first
+        evaluates the start); 0 (the default) starts from ``initial`` as the
+        authors' code does. On a wrinkled 512^2 face
         12 took the glossy maps from 1.7-4.9 times the constant map's error to
         1.00-1.01 (``alpha_ss`` excepted) and the displacement from 0.78 to
         0.36; on the demo's 256^2 captures it made ``rho_ss`` worse (1.06 ->
@@ -232,6 +233,9 @@ class StaticConfig:
         _positive_int(self.min_steps_per_epoch, "min_steps_per_epoch")
         _positive_int(self.min_views, "min_views")
         _positive_int(self.face_level_evaluations, "face_level_evaluations", minimum=0)
+        if self.face_level_evaluations == 1:
+            raise ValueError("config: face_level_evaluations must be 0 (off) or at least 2 (the "
+                             "first pass only evaluates the start), got 1")
         _positive_int(self.seed, "seed", minimum=0)
         for key, table in (("weights", STATIC_WEIGHTS), ("learning_rates", LEARNING_RATES),
                            ("sobolev_lengths", SOBOLEV_LENGTHS)):

@@ -132,16 +132,16 @@ def face_level_system(params, cache, patches, config, weights, noise, names, tex
             continue
         chi_square += float(np.sum(texel_chi_square[use]))
         albedos = list(range(len(TANGENTS), texel_info.shape[1]))
-        prior = prior_precisions(config, len(prepared.observed))[albedos]
-        m_aa = texel_info[use][:, albedos][:, :, albedos] + np.diag(prior)[None]
+        # a band's residuals read only its own albedo, so the albedos' block of each texel is
+        # diagonal and its Schur complement a division
+        m_aa = (np.diagonal(texel_info[use][:, albedos][:, :, albedos], axis1=1, axis2=2)
+                + prior_precisions(config, len(prepared.observed))[albedos])
         m_ha = texel_info[use][:, held][:, :, albedos]
         vector = texel_gradient[use]
-        solved = np.linalg.solve(m_aa, np.concatenate(
-            [np.swapaxes(m_ha, 1, 2), vector[:, albedos, None]], axis=2))
         information += np.sum(texel_info[use][:, held][:, :, held]
-                              - np.einsum("nhk,nkj->nhj", m_ha, solved[:, :, :len(held)]), axis=0)
-        gradient += np.sum(vector[:, held] - np.einsum("nhk,nk->nh", m_ha, solved[:, :, -1]),
-                           axis=0)
+                              - np.einsum("nhk,njk->nhj", m_ha, m_ha / m_aa[:, None]), axis=0)
+        gradient += np.sum(vector[:, held]
+                           - np.einsum("nhk,nk->nh", m_ha, vector[:, albedos] / m_aa), axis=0)
     information += np.diag(prior_precisions(config, 0)[held])
     return chi_square, gradient, information
 

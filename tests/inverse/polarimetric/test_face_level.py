@@ -62,7 +62,8 @@ def _start(store, atlas, config):
 def _chi_square_at(store, atlas, config, levels):
     params = _start(store, atlas, config)
     set_constant_maps(params, levels)
-    cache, patches = PatchCache(store, atlas), texture_patches(T, config.patch_size, 8)
+    cache = PatchCache(store, atlas)
+    patches = texture_patches(T, config.patch_size, store.block_size)
     solve_albedos(params, cache, patches, config)
     return face_level_system(params, cache, patches, config, active_weights(config),
                              config.photometric_noise, GLOSSY_PARAMETERS, atlas.valid)[0]
@@ -111,6 +112,7 @@ def test_a_fit_asked_for_it_starts_at_the_face_levels_unless_handed_its_start(sp
     assert "eta" not in partly.face_levels["values"]
 
 
-def test_the_evaluations_must_be_a_count():
+@pytest.mark.parametrize("value", [-1, 1, 2.5, "12"])
+def test_the_evaluations_must_be_off_or_a_count_of_passes(value):
     with pytest.raises(ValueError, match="face_level_evaluations"):
-        static_config(face_level_evaluations=-1)
+        static_config(face_level_evaluations=value)
