@@ -40,6 +40,7 @@ SLOWEST_FILES = (
     "tests/inverse/biophysical/test_bio_stage.py",  # 88 s
     "tests/skin/test_skin_band_information.py",  # 51 s
     "tests/inverse/biophysical/test_biophysical.py",  # 46 s
+    "tests/inverse/polarimetric/test_relief_std.py",  # 27 s alone on two cores (2026-12-07)
     "tests/inverse/biophysical/test_texel_noise.py",  # 32 s
     "tests/inverse/test_run_inputs.py",  # 30 s
 )

@@ -136,6 +136,14 @@ class StaticConfig:
         0.36; on the demo's 256^2 captures it made ``rho_ss`` worse (1.06 ->
         1.56 and 1.07 -> 3.42 at seeds 0 and 1) and the displacement too (0.37
         -> 0.54 at seed 0), so it is off by default (bench/RESULTS.md).
+    capture_blur_mm : float or None
+        Standard deviation (mm) of the capture's blur of the surface, as one Gaussian
+        (:func:`~polarbssrdf.inverse.observations.footprint.capture_blur_variance_mm2`):
+        the displacement's std counts the relief finer than it as seen through the
+        prior only. It does not change the fit. ``None`` (default): the static and
+        dynamic stages estimate it from the capture's cameras; a Python call of
+        :func:`~polarbssrdf.inverse.polarimetric.fit.run_polarimetric_fit` without it
+        takes the data as sharp.
     sobolev_lengths : dict
         Per map, the smoothing length (texels) of its Sobolev-preconditioned
         gradient, ``(I + length^2 L)^-1 g`` (:data:`SOBOLEV_LENGTHS`; 0 steps
@@ -209,6 +217,7 @@ class StaticConfig:
     final_learning_rate: float = 0.1
     sobolev_lengths: dict = dataclasses.field(default_factory=lambda: dict(SOBOLEV_LENGTHS))
     face_level_evaluations: int = 0
+    capture_blur_mm: float | None = None
     specular_half_cosine: float = 0.86
     separate_lobes: bool = False
     photometric_noise: float = 0.01
@@ -237,6 +246,8 @@ class StaticConfig:
             raise ValueError("config: face_level_evaluations must be 0 (off) or at least 2 (the "
                              "first pass only evaluates the start), got 1")
         _positive_int(self.seed, "seed", minimum=0)
+        if self.capture_blur_mm is not None:
+            _finite(self.capture_blur_mm, "capture_blur_mm", minimum=0.0)
         for key, table in (("weights", STATIC_WEIGHTS), ("learning_rates", LEARNING_RATES),
                            ("sobolev_lengths", SOBOLEV_LENGTHS)):
             values = getattr(self, key)

@@ -44,6 +44,7 @@ from polarbssrdf.inverse.observations.build import load_or_build_observations
 from polarbssrdf.inverse.polarimetric.config import merged_config, parse_dynamic
 from polarbssrdf.inverse.polarimetric.fit import initial_parameters, run_polarimetric_fit
 from polarbssrdf.inverse.polarimetric.optimize import MapParameters
+from polarbssrdf.inverse.polarimetric.static import with_capture_blur
 from polarbssrdf.inverse.results.directory import (
     OBSERVATIONS_DIR,
     RESULT_FILE,
@@ -133,6 +134,7 @@ def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(),
         raise ValueError(f"the static maps lack {', '.join(missing)}: frame {frame}'s bands "
                          "differ from the static frame's")
     atlas = texel_atlas(to_mitsuba(capture.load_mesh()), texture_size)
+    frame_config = with_capture_blur(frame_config, capture, atlas, frame, holdout)
     face_level = {name: record for name, record in static_held_maps(outdir).items()
                   if name in HELD or name in OPTIMIZED}
     maps, _ = initial_parameters(frame_config, texture_size, len(store.bands), static)
@@ -158,6 +160,7 @@ def fit_frame(capture_dir, outdir, frame, texture_size, config_json, holdout=(),
     metadata = {"stage": STAGE, "frame": int(frame), "config": config.to_json(),
                 "weights": weights, "texel_views": len(store), "history": result.history,
                 "confidence": result.confidence, "held_at_face_mean": result.held,
+                "capture_blur_mm": frame_config.capture_blur_mm,
                 "seconds": round(time.perf_counter() - started, 3)}
     write_exr(path, result.maps, metadata=metadata, overwrite=True)
     dr.flush_malloc_cache()

@@ -125,6 +125,7 @@ def run_fingerprint(config, texture_size, bands, texel_views):
     settings.pop("iterations")  # a run may be extended by more epochs
     settings.pop("bio", None)  # the later stages' settings do not change this fit
     settings.pop("dynamic", None)
+    settings.pop("capture_blur_mm", None)  # the posterior's, not the fit's
     text = json.dumps({"config": settings, "texture": int(texture_size), "bands": list(bands),
                        "texel_views": int(texel_views)}, sort_keys=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
@@ -495,6 +496,15 @@ def final_maps(params, atlas, confidence, band_names, specular_peak_angle=None, 
     return channels
 
 
+def blur_in_texels(blur_mm, atlas):
+    """``(s_u, s_v)``: the variance (texels^2) along ``u`` and ``v`` of a blur of std
+    ``blur_mm`` at the atlas's median texel size; ``None`` for ``None``."""
+    if blur_mm is None:
+        return None
+    texel_mm = np.median(np.asarray(atlas.texel_size_mm, np.float64)[atlas.valid], axis=0)
+    return tuple(float(blur_mm) ** 2 / np.maximum(texel_mm, 1e-12) ** 2)
+
+
 def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, progress=True,
                          weights=None, optimized=OPTIMIZED, description="fit", params=None):
     """Optimize maps on a store and return :class:`StageResult` (maps in the result format)."""
@@ -520,7 +530,8 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
     summary = confidence_summary(confidence, atlas.valid)
     check_some_confident(summary, statistics, atlas.valid, config)
     weights, noise = active_weights(config, weights), epoch_noise(config, history)
-    std = map_posterior_std(params, cache, patches, config, weights, noise, store.bands)
+    std = map_posterior_std(params, cache, patches, config, weights, noise, store.bands,
+                            blur_in_texels(config.capture_blur_mm, atlas))
     maps = final_maps(params, atlas, confidence, store.bands, statistics.specular_peak_angle, std)
     confident = (confidence > 0) & atlas.valid
     held = unresolved_maps(maps, confident,

@@ -92,6 +92,9 @@ class PreparedPatch:
         The same, in NumPy.
     view_start, view_count : UInt32
         Per window texel: its first texel-view and how many it has.
+    camera_numpy : (N,) int64
+        Each texel-view's camera: the index of the first of the store's views taken with it
+        (the posterior's clusters of view-specific error).
     geometry : ViewGeometry
     observed : list of tuple of 4 Float
         ``(I0, I45, I90, I135)`` per band.
@@ -113,6 +116,7 @@ class PreparedPatch:
     texel_numpy: np.ndarray
     view_start: object
     view_count: object
+    camera_numpy: np.ndarray
     geometry: ViewGeometry
     observed: list
     image_scale: float
@@ -165,6 +169,11 @@ def prepare_patch(store, atlas, patch):
     order = np.argsort(local, kind="stable")
     views, local = views.take(order), local[order]
     view_count = np.bincount(local, minlength=len(window_index))
+    view_index = np.asarray(views.view, np.int64)
+    camera_names = [view["camera"] for view in store.views]
+    # a store that names no cameras (one made in memory) counts each view as its own camera
+    camera = (np.array([camera_names.index(name) for name in camera_names], np.int64)[view_index]
+              if camera_names else view_index)
     view_start = np.concatenate([[0], np.cumsum(view_count)[:-1]])
     analyser = np.asarray(views.analyser, np.float32)
     observed = [tuple(to_jit(Float, analyser[:, band, k]) for k in range(4))
@@ -178,6 +187,7 @@ def prepare_patch(store, atlas, patch):
         texel=to_jit(UInt32, local, np.uint32), texel_numpy=local,
         view_start=to_jit(UInt32, view_start, np.uint32),
         view_count=to_jit(UInt32, view_count, np.uint32),
+        camera_numpy=camera,
         window_index_jit=to_jit(UInt32, window_index, np.uint32),
         window_valid_jit=to_jit(Float, valid.ravel(), np.float32),
         geometry=ViewGeometry.from_texel_views(views), observed=observed,

@@ -37,10 +37,24 @@ What is computed, and the approximations made (each stated, none hidden):
 3. The fit's photometric noise is the one its last epoch measured
    (:func:`polarbssrdf.inverse.polarimetric.fit.epoch_noise`), so the
    precision is that of the residuals the model actually leaves.
+4. **The displacement's noise is the cameras' disagreement.** The slopes
+   integrate into the relief, so error that is the same in the neighbouring
+   texels of one camera (interreflection, a shadow's edge, a glossy level
+   that is off: light the per-texel model lacks) accumulates at low
+   frequencies, where the model's independent noise accounts for 1/40 to
+   1/80 of the relief's error power on the demo (wavelengths above 30
+   texels). Its power per frequency is taken from the cameras' scores at
+   the fitted maps, a clustered (sandwich) variance with the cameras as
+   clusters and the jackknife's leverage correction
+   (:func:`displacement_noise_inflation`); on the demo captures it took the
+   displacement's 2-std coverage from 0.30-0.43 to 0.87-0.92 (bench/RESULTS.md).
+   The capture's blur (:func:`blur_transfer`, ``config.capture_blur_mm``)
+   hides relief finer than the pixels' footprint: the std counts that detail
+   as the prior's.
 
-This is the posterior of the model: error the model cannot see (light it
-lacks, an optimizer that stopped short of the minimum) is not in it, which
-is what the coverage of :mod:`polarbssrdf.inverse.evaluation.scores` measures.
+Error the cameras share and an optimizer that stopped short of the minimum
+are not in it, which is what the coverage of
+:mod:`polarbssrdf.inverse.evaluation.scores` measures.
 """
 
 from __future__ import annotations
@@ -150,29 +164,54 @@ def texel_information(params, prepared, config, weights, noise):
     """
     jacobians, band_of, usable, values = residual_jacobians(params, prepared, config, weights,
                                                             noise)
-    values = np.where(np.isfinite(values), values, 0.0)
+    jacobians, values = finite_jacobians(jacobians, values)
+    return information_from_jacobians(jacobians, band_of, usable, values, prepared)
+
+
+def finite_jacobians(jacobians, values):
+    """``(jacobians, values)`` with what is not finite set to 0 (copies)."""
+    return ({name: np.where(np.isfinite(d), d, 0.0) for name, d in jacobians.items()},
+            np.where(np.isfinite(values), values, 0.0))
+
+
+def texel_view_scores(jacobians, band_of, values):
+    """``J^T r`` of each texel-view (N, P): the derivative of half its chi-square with respect
+    to its texel's parameters (the order of :func:`texel_information`), from
+    :func:`residual_jacobians`' outputs made finite (:func:`finite_jacobians`)."""
+    n_bands = int(band_of.max()) + 1 if len(band_of) else 0
+    K = len(TANGENTS)
+    scores = np.zeros((values.shape[1], K + n_bands))
+    for a, name in enumerate(TANGENTS):
+        scores[:, a] = np.sum(jacobians[name] * values, axis=0)
+    for band in range(n_bands):
+        rows = band_of == band
+        scores[:, K + band] = np.sum(jacobians["rho_sss"][rows] * values[rows], axis=0)
+    return scores
+
+
+def information_from_jacobians(jacobians, band_of, usable, values, prepared):
+    """:func:`texel_information` from :func:`residual_jacobians`' outputs made finite
+    (:func:`finite_jacobians`), so one pass of derivatives serves the information and
+    :func:`displacement_noise_inflation`."""
     n_window = len(prepared.window_index)
     n_bands = len(prepared.observed)
     texel = np.asarray(prepared.texel_numpy)
     K = len(TANGENTS)
     P = K + n_bands
-    for name, derivatives in jacobians.items():
-        jacobians[name] = np.where(np.isfinite(derivatives), derivatives, 0.0)
     information = np.zeros((n_window, P, P))
 
     def per_texel(values):
         return np.bincount(texel, weights=values, minlength=n_window)
 
-    gradient = np.zeros((n_window, P))
+    scores = texel_view_scores(jacobians, band_of, values)
+    gradient = np.stack([per_texel(scores[:, a]) for a in range(P)], axis=1)
     for a in range(K):
-        gradient[:, a] = per_texel(np.sum(jacobians[TANGENTS[a]] * values, axis=0))
         for b in range(a, K):
             entry = per_texel(np.sum(jacobians[TANGENTS[a]] * jacobians[TANGENTS[b]], axis=0))
             information[:, a, b] = information[:, b, a] = entry
     albedo = jacobians["rho_sss"]
     for band in range(n_bands):
         rows = band_of == band
-        gradient[:, K + band] = per_texel(np.sum(albedo[rows] * values[rows], axis=0))
         information[:, K + band, K + band] = per_texel(np.sum(albedo[rows] ** 2, axis=0))
         for a in range(K):
             entry = per_texel(np.sum(jacobians[TANGENTS[a]][rows] * albedo[rows], axis=0))
@@ -251,16 +290,20 @@ def _tabulated(data_precision, mean_over_frequencies):
     return out
 
 
-def roughness_variance(observed, data_precision, data_symbol, fit_prior, stencil):
+def roughness_variance(observed, data_precision, data_symbol, fit_prior, stencil,
+                       noise_inflation=1.0, transfer=1.0):
     """The truth's strength ``theta`` of a regularizer's residual, from the fitted map's.
 
-    The fitted map at frequency ``f`` is ``x_hat = g (x + n)``, ``g = d S /
+    The fitted map at frequency ``f`` is ``x_hat = g (m x + n)``, ``g = d S /
     (d S + P_fit)``, the truth ``x`` of variance ``theta / |A|^2`` (a prior
-    of the regularizer's form whose strength ``theta`` is unknown) and the
-    noise ``n`` of variance ``1 / (d S)``. The mean square of the
-    regularizer's residual ``A x_hat`` is then linear in ``theta``:
+    of the regularizer's form whose strength ``theta`` is unknown), ``m`` the
+    capture's ``transfer`` of it into the data (its blur, :func:`blur_transfer`;
+    1 for sharp data) and the noise ``n`` of variance ``c / (d S)``, ``c`` the
+    ``noise_inflation`` (:func:`view_noise_inflation`; 1 for the noise the
+    model assumes). The mean square of the regularizer's residual ``A x_hat``
+    is then linear in ``theta``:
 
-        R = theta mean_f [|A| > 0] g^2 + mean_f |A|^2 g^2 / (d S)
+        R = theta mean_f [|A| > 0] g^2 m^2 + mean_f c |A|^2 g^2 / (d S)
 
     (the residual is blind to what ``A`` annihilates, the face's mean
     level), solved for ``theta`` with ``R`` the term's value on the fitted
@@ -272,28 +315,35 @@ def roughness_variance(observed, data_precision, data_symbol, fit_prior, stencil
     def gain(d):
         return d * data_symbol / (d * data_symbol + fit_prior)
 
-    signal = _tabulated(data_precision, lambda d: np.mean(seen * np.square(gain(d))))
+    signal = _tabulated(data_precision, lambda d: np.mean(seen * np.square(gain(d) * transfer)))
     noise = _tabulated(data_precision, lambda d: np.mean(
-        stencil * np.square(gain(d)) / np.maximum(d * data_symbol, 1e-300)))
+        noise_inflation * stencil * np.square(gain(d)) / np.maximum(d * data_symbol, 1e-300)))
     good = np.isfinite(signal) & np.isfinite(noise)
     if not good.any():
         return 0.0
     return max((float(observed) - float(np.mean(noise[good]))) / float(np.mean(signal[good])), 0.0)
 
 
-def estimator_variance(data_precision, data_symbol, fit_prior, true_prior):
-    """Per texel, ``mean_f (d S + P_fit^2 / P_true) / (d S + P_fit)^2``: the error variance of
-    the map the fit returns (regularized with ``P_fit``) when the truth follows ``P_true``.
+def estimator_variance(data_precision, data_symbol, fit_prior, true_prior, noise_inflation=1.0,
+                       transfer=1.0):
+    """Per texel, ``mean_f [(1 - g m)^2 / P_true + c g^2 / (d S)]``, ``g = d S / (d S +
+    P_fit)``: the error variance of the map the fit returns (regularized with ``P_fit``)
+    when the truth follows ``P_true``, reaches the data through the ``transfer`` ``m`` and
+    the noise is ``noise_inflation`` ``c`` times the model's (:func:`roughness_variance`).
 
-    With ``P_true = P_fit`` this is the posterior variance ``mean_f 1 / (d S +
-    P)``; a regularizer stronger than the truth's roughness adds the bias it
-    causes (the detail it flattens). ``S``, ``P_fit``, ``P_true``: (rows, cols)
-    arrays or scalars over the patch's frequencies (approximation 2 above).
+    With ``P_true = P_fit`` and ``c = m = 1`` this is the posterior variance
+    ``mean_f 1 / (d S + P)``; a regularizer stronger than the truth's roughness
+    adds the bias it causes (the detail it flattens), and a blur ``m < 1`` the
+    detail the data never showed. ``S``, ``P_fit``, ``P_true``, ``c``, ``m``:
+    (rows, cols) arrays or scalars over the patch's frequencies (approximation 2
+    above).
     """
 
     def mean(d):
         data = d * data_symbol
-        return np.mean((data + np.square(fit_prior) / true_prior) / np.square(data + fit_prior))
+        gain = data / (data + fit_prior)
+        return np.mean(np.square(1.0 - gain * transfer) / true_prior
+                       + noise_inflation * np.square(gain) / np.maximum(data, 1e-300))
 
     return _tabulated(data_precision, mean)
 
@@ -303,20 +353,156 @@ def regularizer_precision(weights, name, information_count, interior_count):
     return float(weights.get(name, 0.0)) * information_count / max(interior_count, 1)
 
 
-def spatial_variance(observed, data_precision, data_symbol, kappa, stencil, floor):
+def spatial_variance(observed, data_precision, data_symbol, kappa, stencil, floor,
+                     noise_inflation=1.0, transfer=1.0):
     """:func:`estimator_variance` of a map under a regularizer ``kappa |A|^2`` (plus the
     frequency-flat ``floor``: the uniform prior, the magnitude prior), the truth's strength
     from :func:`roughness_variance` on the regularizer's ``observed`` value."""
     fit_prior = kappa * stencil + floor
-    theta = roughness_variance(observed, data_precision, data_symbol, fit_prior, stencil)
+    theta = roughness_variance(observed, data_precision, data_symbol, fit_prior, stencil,
+                               noise_inflation, transfer)
     true_prior = stencil / max(theta, 1e-300) + floor
-    return estimator_variance(data_precision, data_symbol, fit_prior, true_prior)
+    return estimator_variance(data_precision, data_symbol, fit_prior, true_prior,
+                              noise_inflation, transfer)
 
 
-def patch_posterior_std(params, prepared, config, weights, noise):
+def efficient_slope_scores(scores, information, prior, texel):
+    """Each texel-view's score on its texel's two slopes with the texel's other parameters
+    projected out (N, 2): ``g_s - M_so M_oo^-1 g_o``, ``M`` the texel's information plus
+    ``diag(prior)`` (the efficient score; summed over a texel's views its covariance is the
+    slopes' marginal precision when the residuals are the noise the model assumes).
+
+    ``scores`` (N, P) from :func:`texel_view_scores`, ``information`` (n_window, P, P),
+    ``texel`` (N,) the window texel of each texel-view.
+    """
+    slopes = [TANGENTS.index(name) for name in SLOPES]
+    others = [index for index in range(scores.shape[1]) if index not in slopes]
+    matrix = information + np.diag(prior)[None]
+    m_so = matrix[:, slopes][:, :, others]
+    m_oo = matrix[:, others][:, :, others]
+    # M_so M_oo^-1 per texel, as the solve of M_oo X = M_os (M_oo is symmetric)
+    projection = np.swapaxes(np.linalg.solve(m_oo, np.swapaxes(m_so, 1, 2)), 1, 2)
+    return scores[:, slopes] - np.einsum("tsk,tk->ts", projection[texel], scores[:, others])
+
+
+def camera_slope_share(jacobians, texel, camera, n_window):
+    """The share ``h`` (N,) of its texel's slope information that each texel-view's camera
+    gives: the camera's sum of squared slope derivatives at the texel over all of the
+    texel's (its weight in the texel's slopes)."""
+    per_view = sum(np.sum(np.square(jacobians[name]), axis=0) for name in SLOPES)
+    key = texel.astype(np.int64) * (int(camera.max()) + 1 if len(camera) else 1) + camera
+    _, group = np.unique(key, return_inverse=True)
+    by_camera = np.bincount(group, weights=per_view)[group]
+    by_texel = np.bincount(texel, weights=per_view, minlength=n_window)[texel]
+    return by_camera / np.maximum(by_texel, 1e-300)
+
+
+LEVERAGE_LIMIT = 0.9
+"""Largest camera share :func:`camera_score_power` divides by ``1 - h`` for: a texel one camera
+sees alone tells nothing of the cameras' disagreement (its centred score is 0)."""
+
+
+def camera_score_power(efficient, share, camera, texel, shape, jackknife=True):
+    """``sum_c |B_c(f)|^2`` (rows, cols): the power at each frequency of the displacement's
+    score from each camera ``c`` of the window, ``B_c = conj(K_u) E_u + conj(K_v) E_v``,
+    ``E`` the camera's centred efficient slope scores per texel and ``K`` the
+    central-difference slopes' transfer function (:func:`slope_symbol_squared`).
+
+    ``efficient`` (N, 2) from :func:`efficient_slope_scores`, ``share`` (N,) from
+    :func:`camera_slope_share`. A camera's score is centred by its share of the texel's
+    total, ``e_c - h_c sum_j e_j``: at a texel whose slopes weigh the cameras by ``h``
+    this is ``d_c (s_mean - s_c)``, the camera's departure from the texel's weighted
+    mean slope, and the regularizers' force (the total score's share at the fitted
+    maps) drops out. With ``jackknife``, the centred score is divided by ``1 - h_c``,
+    which makes it the departure from the mean of the other cameras: the jackknife's
+    leverage correction of a clustered variance (CR3; MacKinnon and White 1985, Bell and
+    McCaffrey 2002). It is conservative, ``sum_c h_c / (1 - h_c)`` of the error's power
+    for independent cameras where the plain centred scores (CR0) give ``1 - sum_c
+    h_c^2``; with a face's few, unequal cameras the unbiased CR2 still under-covers
+    (MacKinnon, Nielsen and Webb 2023).
+    """
+    omega_v, omega_u = _frequencies(shape)
+    k_u = 1j * shape[1] * np.sin(omega_u)
+    k_v = 1j * shape[0] * np.sin(omega_v)
+    n_window = shape[0] * shape[1]
+    total = np.stack([np.bincount(texel, weights=efficient[:, axis], minlength=n_window)
+                      for axis in (0, 1)], axis=1)
+    centred = efficient - share[:, None] * total[texel]
+    if jackknife:
+        centred = centred / (1.0 - np.minimum(share, LEVERAGE_LIMIT))[:, None]
+    power = np.zeros(shape)
+    for index in np.unique(camera):
+        rows = camera == index
+        e_u, e_v = (np.bincount(texel[rows], weights=centred[rows, axis],
+                                minlength=n_window).reshape(shape) for axis in (0, 1))
+        score = np.conj(k_u) * np.fft.fft2(e_u) + np.conj(k_v) * np.fft.fft2(e_v)
+        power += np.square(np.abs(score))
+    return power
+
+
+def view_noise_inflation(power, model_power):
+    """``c(f) = P(f) / (d S(f))`` (rows, cols): at each frequency the cameras' score power
+    (:func:`camera_score_power`, per seen texel) over the model's, 1 where the slopes see
+    nothing (``S = 0``: the mean level, the Nyquist lines).
+
+    Under the model's noise the cameras' scores are independent and ``c = 1``. Light
+    the per-texel model lacks (interreflection, a shadow's edge, a glossy level that is
+    off) is the same in the neighbouring texels of one camera and differs between
+    cameras: it raises the power of the low frequencies, which the slopes integrate
+    into the relief; the images' blur correlates the noise of neighbouring texels and
+    lowers the power of the high ones. This is the clustered (sandwich) variance of
+    the scores (Liang and Zeger 1986) with the cameras as clusters, per frequency as
+    Whittle's approximation takes a stationary field's. One frequency's estimate is
+    noisy (a few cameras' powers); the variance averages it over every frequency
+    (:func:`estimator_variance`). Error the cameras share is not in it.
+    """
+    positive = model_power > 0
+    return np.where(positive, power / np.where(positive, model_power, 1.0), 1.0)
+
+
+def blur_transfer(shape, blur_texels2):
+    """``m(f) = exp(-(s_u omega_u^2 + s_v omega_v^2) / 2)`` (rows, cols): the transfer of a
+    Gaussian blur of variance ``blur_texels2 = (s_u, s_v)`` (texels^2 along ``u`` and ``v``)
+    on the window's frequencies; 1 for ``None``."""
+    if blur_texels2 is None:
+        return 1.0
+    omega_v, omega_u = _frequencies(shape)
+    s_u, s_v = (float(value) for value in blur_texels2)
+    return np.exp(-0.5 * (s_u * np.square(omega_u) + s_v * np.square(omega_v)))
+
+
+def displacement_noise_inflation(jacobians, band_of, values, information, prior, prepared,
+                                 slope_precision, seen):
+    """:func:`view_noise_inflation` of a window's displacement from one pass of
+    :func:`residual_jacobians` made finite (``jacobians``, ``band_of``, ``values``), the
+    texels' ``information``, the parameters' ``prior`` precisions, the slopes' marginal
+    precision per texel and the ``seen`` texels of the window."""
+    shape = prepared.window_valid.shape
+    if not np.any(seen):
+        return np.ones(shape)
+    texel = np.asarray(prepared.texel_numpy)
+    camera = np.asarray(prepared.camera_numpy)
+    efficient = efficient_slope_scores(texel_view_scores(jacobians, band_of, values),
+                                       information, prior, texel)
+    share = camera_slope_share(jacobians, texel, camera, len(prepared.window_index))
+    n_seen = max(int(np.sum(seen)), 1)
+    power = camera_score_power(efficient, share, camera, texel, shape) / n_seen
+    model_power = float(np.mean(slope_precision[seen])) * slope_symbol_squared(shape)
+    return view_noise_inflation(power, model_power)
+
+
+def patch_posterior_std(params, prepared, config, weights, noise, blur_texels2=None):
     """Posterior std of every map over a patch's window: ``{map or ("rho_sss", band):
-    (n_window,)}`` (NaN where the window's texel is off the surface or unseen)."""
-    information, _, counts, _ = texel_information(params, prepared, config, weights, noise)
+    (n_window,)}`` (NaN where the window's texel is off the surface or unseen).
+
+    ``blur_texels2``: the capture's blur along ``u`` and ``v`` (texels^2, see
+    :func:`blur_transfer`) that the displacement's std accounts for; ``None``: sharp data.
+    """
+    jacobians, band_of, usable, values = residual_jacobians(params, prepared, config, weights,
+                                                            noise)
+    jacobians, values = finite_jacobians(jacobians, values)
+    information, _, counts, _ = information_from_jacobians(jacobians, band_of, usable, values,
+                                                           prepared)
     n_bands = len(prepared.observed)
     prior = prior_precisions(config, n_bands)
     variances, slope_precision = marginal_variances(information, prior)
@@ -343,11 +529,14 @@ def patch_posterior_std(params, prepared, config, weights, noise):
     if "displacement" in params.optimized:
         floor = (regularizer_precision(weights, "H_magnitude", used, stencils.count)
                  + uniform_prior_precision(*config.bounds["displacement"]))
+        inflation = displacement_noise_inflation(jacobians, band_of, values, information,
+                                                 prior, prepared, slope_precision, seen)
         variance = spatial_variance(
             observed["H_laplacian"], np.where(seen, slope_precision, np.nan),
             slope_symbol_squared(shape),
             regularizer_precision(weights, "H_laplacian", used, stencils.count),
-            laplacian_symbol_squared(shape), floor)
+            laplacian_symbol_squared(shape), floor, inflation,
+            blur_transfer(shape, blur_texels2))
         std["displacement"] = np.sqrt(variance)
     K = len(TANGENTS)
     for band in range(n_bands):
@@ -357,13 +546,15 @@ def patch_posterior_std(params, prepared, config, weights, noise):
     return std
 
 
-def map_posterior_std(params, cache, patches, config, weights, noise, band_names):
+def map_posterior_std(params, cache, patches, config, weights, noise, band_names,
+                      blur_texels2=None):
     """Posterior std of every fitted map over the texture: ``{"<map>_std": (T, T) float32}``.
 
     ``rho_sss`` per band as ``rho_sss.<band>_std``. Each patch sets its own
     texels (not its halo's); texels no usable view sees are NaN (the stages
     replace them, see :func:`polarbssrdf.inverse.polarimetric.fit.final_maps`).
-    Memory is that of one patch's Jacobians.
+    ``blur_texels2`` as in :func:`patch_posterior_std`. Memory is that of one patch's
+    Jacobians.
     """
     T = params.resolution
     out = {}
@@ -371,7 +562,7 @@ def map_posterior_std(params, cache, patches, config, weights, noise, band_names
         prepared = cache.get(patch)
         if len(prepared) == 0:
             continue
-        std = patch_posterior_std(params, prepared, config, weights, noise)
+        std = patch_posterior_std(params, prepared, config, weights, noise, blur_texels2)
         interior = prepared.stencils.interior.ravel() > 0
         texels = prepared.window_index[interior]
         for key, values in std.items():

@@ -12,6 +12,7 @@ patch steps with checkpoints, confidence, the specular peak angle).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import mitsuba as mi
 
 from polarbssrdf.geometry import texel_atlas, to_mitsuba
 from polarbssrdf.inverse.observations.build import load_or_build_observations
+from polarbssrdf.inverse.observations.footprint import capture_blur_variance_mm2
 from polarbssrdf.inverse.polarimetric.fit import run_polarimetric_fit
 from polarbssrdf.inverse.results.directory import (
     OBSERVATIONS_DIR,
@@ -31,6 +33,16 @@ from polarbssrdf.inverse.results.previews import write_map_previews
 
 STAGE = "static"
 CHECKPOINT_FILE = "checkpoint.npz"
+
+
+def with_capture_blur(config, capture, atlas, frame, holdout=()):
+    """``config`` with ``capture_blur_mm`` estimated from the ``frame``'s fitted cameras
+    (:func:`~polarbssrdf.inverse.observations.footprint.capture_blur_variance_mm2`) when
+    it is ``None``."""
+    if config.capture_blur_mm is not None:
+        return config
+    variance, _ = capture_blur_variance_mm2(capture, atlas, frame, exclude_cameras=tuple(holdout))
+    return dataclasses.replace(config, capture_blur_mm=round(float(variance) ** 0.5, 6))
 
 
 def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=(),
@@ -48,6 +60,7 @@ def run_static_stage(capture, outdir, config, texture_size, *, frame=0, holdout=
         capture, frame, texture_size, outdir / OBSERVATIONS_DIR / f"f{frame:04d}.zarr",
         exclude_cameras=tuple(holdout), progress=progress)
     atlas = texel_atlas(to_mitsuba(capture.load_mesh()), texture_size)
+    config = with_capture_blur(config, capture, atlas, frame, holdout)
     stage_dir = outdir / STAGE
     stage_dir.mkdir(parents=True, exist_ok=True)
     result = run_polarimetric_fit(store, atlas, config, checkpoint=stage_dir / CHECKPOINT_FILE,

@@ -179,6 +179,158 @@ def test_a_prior_stronger_than_the_truth_adds_its_bias_and_the_truth_strength_is
     assert recovered == pytest.approx(theta, rel=0.2)
 
 
+def test_a_blurred_capture_adds_the_detail_it_hides_to_the_error():
+    """Monte Carlo: the truth blurred (a periodic Gaussian of variance 2 texels^2, about the
+    demo's cameras' blur on a 512^2 map) before the noise, fitted as if sharp. With the blur's transfer the predicted
+    error and the recovered truth strength match; without it both fall short."""
+    shape = (24, 24)
+    n = shape[0] * shape[1]
+    A = _neighbourhood_residual(shape)
+    d, kappa_fit, theta, floor = 400.0, 2e3, 4e-4, 1.0
+    true_precision = A.T @ A / theta + floor * np.eye(n)
+    fit_precision = d * np.eye(n) + kappa_fit * A.T @ A + floor * np.eye(n)
+    draw = np.linalg.cholesky(np.linalg.inv(true_precision))
+    transfer = posterior.blur_transfer(shape, (2.0, 2.0))
+    rng = np.random.default_rng(23)
+    squared, roughness = [], []
+    for _ in range(40):
+        truth = draw @ rng.standard_normal(n)
+        blurred = np.real(np.fft.ifft2(transfer * np.fft.fft2(truth.reshape(shape)))).ravel()
+        observed = blurred + rng.standard_normal(n) / np.sqrt(d)
+        estimate = np.linalg.solve(fit_precision, d * observed)
+        squared.append(np.mean(np.square(estimate - truth)))
+        roughness.append(np.mean(np.square(A @ estimate)))
+    symbol = posterior.neighbourhood_symbol_squared(shape)
+    fit_prior, true_prior = kappa_fit * symbol + floor, symbol / theta + floor
+
+    def predicted(m):
+        return posterior.estimator_variance(np.array([d]), 1.0, fit_prior, true_prior,
+                                            transfer=m)[0]
+
+    assert np.mean(squared) == pytest.approx(predicted(transfer), rel=0.1)
+    assert predicted(1.0) < 0.8 * np.mean(squared)
+    recovered = posterior.roughness_variance(np.mean(roughness), np.array([d]), 1.0, fit_prior,
+                                             symbol, transfer=transfer)
+    assert recovered == pytest.approx(theta, rel=0.2)
+    assert posterior.roughness_variance(np.mean(roughness), np.array([d]), 1.0, fit_prior,
+                                        symbol) < 0.8 * theta
+
+
+def _gaussian_spectrum(shape, width):
+    """The power spectrum (rows, cols), mean 1, of white noise smoothed by a periodic Gaussian
+    of ``width`` texels."""
+    omega_v = 2 * np.pi * np.fft.fftfreq(shape[0])[:, None]
+    omega_u = 2 * np.pi * np.fft.fftfreq(shape[1])[None, :]
+    spectrum = np.exp(-(width ** 2) * (np.square(omega_u) + np.square(omega_v)))
+    return spectrum / spectrum.mean()
+
+
+def _camera_slope_problem(shape, precisions, correlation_texels, draws, seed):
+    """Monte Carlo of a relief fitted from each camera's slopes on a periodic grid: the truth
+    0, each camera's slope noise spatially correlated (the spectrum of white noise smoothed
+    by a Gaussian of ``correlation_texels``, :func:`_gaussian_spectrum`; per-texel variance
+    ``1 / d_c``), the fit regularized by a Laplacian and a magnitude prior.
+
+    Returns ``(mean squared error, [(efficient scores, camera share, camera, texel)] per
+    draw, slope symbol, fit prior)``: the scores of every camera at every texel at the
+    fitted relief, as the posterior gets them from the residuals."""
+    rows, cols = shape
+    n = rows * cols
+    du = _periodic_operator(shape, {(0, 1): cols / 2, (0, -1): -cols / 2})
+    dv = _periodic_operator(shape, {(1, 0): rows / 2, (-1, 0): -rows / 2})
+    laplacian = _periodic_operator(shape, {(0, 1): 1, (0, -1): 1, (1, 0): 1, (-1, 0): 1,
+                                           (0, 0): -4})
+    k_lap, k_mag = 2.0, 1e-3
+    total = float(np.sum(precisions))
+    normal = (total * (du.T @ du + dv.T @ dv) + k_lap * laplacian.T @ laplacian
+              + k_mag * np.eye(n))
+    rng = np.random.default_rng(seed)
+    spectrum = _gaussian_spectrum(shape, correlation_texels)
+    texel = np.tile(np.arange(n), len(precisions))
+    camera = np.repeat(np.arange(len(precisions)), n)
+    share = np.repeat(np.asarray(precisions) / total, n)
+    squared, samples = [], []
+    for _ in range(draws):
+        slopes = []
+        for d in precisions:
+            pair = []
+            for _axis in range(2):
+                field = np.real(np.fft.ifft2(np.sqrt(spectrum)
+                                             * np.fft.fft2(rng.standard_normal(shape))))
+                pair.append(field.ravel() / np.sqrt(d))
+            slopes.append(pair)
+        estimate = np.linalg.solve(normal, sum(d * (du.T @ s_u + dv.T @ s_v)
+                                               for d, (s_u, s_v) in zip(precisions, slopes)))
+        squared.append(np.mean(np.square(estimate)))
+        fitted_u, fitted_v = du @ estimate, dv @ estimate
+        scores = np.concatenate([np.stack([d * (fitted_u - s_u), d * (fitted_v - s_v)], axis=1)
+                                 for d, (s_u, s_v) in zip(precisions, slopes)])
+        samples.append((scores, share, camera, texel))
+    fit_prior = k_lap * posterior.laplacian_symbol_squared(shape) + k_mag
+    return float(np.mean(squared)), samples, posterior.slope_symbol_squared(shape), fit_prior
+
+
+def test_the_cameras_scores_give_the_reliefs_error_when_their_noise_is_correlated():
+    """Against Monte Carlo of the linear problem (an independent fit by dense normal
+    equations) and the algebra of its residuals: every camera's slope noise correlated over
+    3 texels (spectrum ``gamma``), the cameras' shares ``h_c`` of the information 0.1-0.4.
+
+    A camera's centred score is its departure from the texels' weighted mean slope, of
+    power ``gamma D S h_c (1 - h_c)`` whatever the regularizers; divided by ``1 - h_c``
+    (the jackknife) the sum over cameras is ``sum_c h_c / (1 - h_c)`` = 1.46 of the error's
+    ``gamma D S`` (conservative), without it ``1 - sum_c h_c^2`` = 0.70."""
+    shape = (32, 32)
+    precisions = [1.0, 2.0, 3.0, 4.0]
+    mse, samples, symbol, fit_prior = _camera_slope_problem(shape, precisions, 3.0, 80, 17)
+    total = float(np.sum(precisions))
+    model_power = total * symbol
+    n = shape[0] * shape[1]
+    gamma = _gaussian_spectrum(shape, 3.0)
+
+    def variance(power):
+        return posterior.estimator_variance(np.array([total]), symbol, fit_prior, np.inf,
+                                            posterior.view_noise_inflation(power, model_power))[0]
+
+    for jackknife, factor in ((True, 1.46), (False, 0.70)):
+        measured = np.mean([posterior.camera_score_power(scores, shares, camera, texel, shape,
+                                                         jackknife) / n
+                            for scores, shares, camera, texel in samples], axis=0)
+        assert variance(measured) == pytest.approx(factor * variance(gamma * model_power),
+                                                   rel=0.1)
+    # the exact error of the fit: gamma's noise through the fit's gain
+    assert mse == pytest.approx(variance(gamma * model_power), rel=0.1)
+    assert posterior.estimator_variance(np.array([total]), symbol, fit_prior, np.inf)[0] \
+        < 0.2 * mse  # the model's white noise misses most of it
+    single = [variance(posterior.camera_score_power(scores, shares, camera, texel, shape) / n)
+              for scores, shares, camera, texel in samples[:10]]
+    # one fit's estimate (one draw): conservative for the median fit, and never far short
+    assert np.median(single) > mse and min(single) > 0.5 * mse
+
+
+def test_the_cameras_scores_leave_white_noise_as_the_model_has_it():
+    """Independent noise per texel and camera, 4 equal cameras: the centred scores' power is
+    ``1 - 1/4`` of the model's at every frequency (the jackknife's ``4 / 3``), whatever the
+    regularizers there."""
+    shape = (32, 32)
+    precisions = [2.0, 2.0, 2.0, 2.0]
+    mse, samples, symbol, fit_prior = _camera_slope_problem(shape, precisions, 0.0, 20, 5)
+    total = float(np.sum(precisions))
+    n = shape[0] * shape[1]
+    seen = symbol > 0
+    for jackknife, factor in ((False, 0.75), (True, 4.0 / 3.0)):
+        power = np.mean([posterior.camera_score_power(scores, shares, camera, texel, shape,
+                                                      jackknife) / n
+                         for scores, shares, camera, texel in samples], axis=0)
+        inflation = posterior.view_noise_inflation(power, total * symbol)
+        assert np.mean(inflation[seen]) == pytest.approx(factor, rel=0.05)
+        # low and high frequencies alike (the regularizers dominate the high ones)
+        low = seen & (symbol < np.median(symbol[seen]))
+        assert np.mean(inflation[low]) == pytest.approx(np.mean(inflation[seen & ~low]),
+                                                        rel=0.1)
+    white = posterior.estimator_variance(np.array([total]), symbol, fit_prior, np.inf)[0]
+    assert white == pytest.approx(mse, rel=0.1)
+
+
 def test_a_map_is_held_only_where_its_spread_is_the_noise_alone():
     rng = np.random.default_rng(3)
     confident = np.ones((40, 40), bool)
