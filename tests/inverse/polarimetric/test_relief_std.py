@@ -29,6 +29,7 @@ def small_face(tmp_path_factory):
     out as the demo does: the fitted maps with the cameras' std and, resumed from the same
     checkpoint, with the model's noise alone."""
     mi.set_variant("llvm_ad_mono_polarized")
+    # deferred until the variant is set: the renderer's modules read it when imported
     from polarbssrdf.demo import TRUTH_SETTINGS
     from polarbssrdf.geometry import texel_atlas, to_mitsuba
     from polarbssrdf.inverse.config import static_config
