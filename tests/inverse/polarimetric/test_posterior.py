@@ -150,15 +150,23 @@ def test_the_stationary_variance_is_the_diagonal_of_the_dense_inverse():
     assert table[0] == pytest.approx(dense, rel=1e-3)
 
 
+def _rough_truth_problem(shape, d, kappa_fit, theta, floor):
+    """``(A, draw, fit_precision)`` of a map observed per texel with precision ``d`` and fitted
+    under eq. 35's prior of weight ``kappa_fit``, the truth drawn (``draw @ white``) from the
+    prior of that form with strength ``theta`` (and the flat ``floor``)."""
+    n = shape[0] * shape[1]
+    A = _neighbourhood_residual(shape)
+    true_precision = A.T @ A / theta + floor * np.eye(n)
+    fit_precision = d * np.eye(n) + kappa_fit * A.T @ A + floor * np.eye(n)
+    return A, np.linalg.cholesky(np.linalg.inv(true_precision)), fit_precision
+
+
 def test_a_prior_stronger_than_the_truth_adds_its_bias_and_the_truth_strength_is_recovered():
     """Monte Carlo on a periodic grid: truth rougher than the regularizer assumes."""
     shape = (24, 24)
     n = shape[0] * shape[1]
-    A = _neighbourhood_residual(shape)
     d, kappa_fit, theta, floor = 400.0, 2e4, 4e-4, 1.0
-    true_precision = A.T @ A / theta + floor * np.eye(n)
-    fit_precision = d * np.eye(n) + kappa_fit * A.T @ A + floor * np.eye(n)
-    draw = np.linalg.cholesky(np.linalg.inv(true_precision))
+    A, draw, fit_precision = _rough_truth_problem(shape, d, kappa_fit, theta, floor)
     rng = np.random.default_rng(9)
     squared, roughness = [], []
     for _ in range(40):
@@ -181,15 +189,13 @@ def test_a_prior_stronger_than_the_truth_adds_its_bias_and_the_truth_strength_is
 
 def test_a_blurred_capture_adds_the_detail_it_hides_to_the_error():
     """Monte Carlo: the truth blurred (a periodic Gaussian of variance 2 texels^2, about the
-    demo's cameras' blur on a 512^2 map) before the noise, fitted as if sharp. With the blur's transfer the predicted
-    error and the recovered truth strength match; without it both fall short."""
+    demo's cameras' blur on a 512^2 map) before the noise, fitted as if sharp. With the
+    blur's transfer the predicted error and the recovered truth strength match; without it
+    both fall short."""
     shape = (24, 24)
     n = shape[0] * shape[1]
-    A = _neighbourhood_residual(shape)
     d, kappa_fit, theta, floor = 400.0, 2e3, 4e-4, 1.0
-    true_precision = A.T @ A / theta + floor * np.eye(n)
-    fit_precision = d * np.eye(n) + kappa_fit * A.T @ A + floor * np.eye(n)
-    draw = np.linalg.cholesky(np.linalg.inv(true_precision))
+    A, draw, fit_precision = _rough_truth_problem(shape, d, kappa_fit, theta, floor)
     transfer = posterior.blur_transfer(shape, (2.0, 2.0))
     rng = np.random.default_rng(23)
     squared, roughness = [], []
