@@ -84,3 +84,11 @@ def test_the_cameras_disagreement_widens_the_relief_std(small_face):
 def test_the_relief_std_covers_its_error_as_issue_33_asks(small_face):
     cameras, _, truth, scored, _ = small_face
     assert COVERAGE_RANGE[0] <= _coverage(cameras, truth, scored) <= COVERAGE_RANGE[1]
+
+
+@pytest.mark.parametrize("value", [-0.1, float("nan"), "0.5", True])
+def test_a_capture_blur_that_is_not_a_length_is_refused(value):
+    from polarbssrdf.inverse.config import static_config
+
+    with pytest.raises(ValueError, match="capture_blur_mm"):
+        static_config(capture_blur_mm=value)
