@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import drjit as dr
 import numpy as np
 
-from polarbssrdf._arrays import constant_like, edge_shift_adjoint, neighbour_index, take, to_jit
+from polarbssrdf._arrays import constant_like, neighbour_index, take, to_jit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,21 +46,16 @@ class HeightFrame:
         def maps(values):
             return tuple(as_map(values[..., k]) for k in range(3))
 
-        rows, cols = self.shape
-        border_u = np.ones((rows, cols), np.float32)
-        border_u[:, [0, -1]] = 2.0
-        border_v = np.ones((rows, cols), np.float32)
-        border_v[[0, -1], :] = 2.0
         index_type = dr.uint32_array_t(dr.array_t(tensor_type))
-        shifts = {(axis, step): to_jit(index_type, neighbour_index(self.shape, axis, step),
+        shifts = {(axis, step): to_jit(index_type, chart_neighbour_index(self.valid, axis, step),
                                        np.uint32)
                   for axis in (0, 1) for step in (-1, 1)}
         return DeviceHeightFrame(
             normal=maps(self.normal), tangent_u=maps(self.tangent_u),
             tangent_v=maps(self.tangent_v),
             orientation=as_map(self.orientation),
-            border_u=as_map(border_u),
-            border_v=as_map(border_v), shifts=shifts, shape=self.shape)
+            border_u=as_map(one_sided_factor(self.valid, 1)),
+            border_v=as_map(one_sided_factor(self.valid, 0)), shifts=shifts, shape=self.shape)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,35 +87,71 @@ def height_frame(atlas):
                        tuple(atlas.valid.shape))
 
 
-def _shifted(height, axis, step, shifts=None):
-    """``height`` shifted by one texel along ``axis`` (edge texels repeated)."""
+def chart_neighbour_index(valid, axis, step):
+    """Flat index of each texel's neighbour ``step`` (+-1) along ``axis``, or of the texel
+    itself where that neighbour is off the map or off the charts (``valid`` False).
+
+    A texel beyond a chart's edge carries no surface of that chart (the surface goes on in
+    another chart, or ends), so a difference across the edge is one-sided, as at the map's
+    border: its height never enters.
+    """
+    valid = np.asarray(valid, bool)
+    return _chart_stencil(valid.shape, valid.tobytes())[0][axis, step]
+
+
+def one_sided_factor(valid, axis):
+    """(rows, cols) float32: 2 where a central difference along ``axis`` lost one of its two
+    neighbours (:func:`chart_neighbour_index`), so that it spans one texel, not two; else 1."""
+    valid = np.asarray(valid, bool)
+    return _chart_stencil(valid.shape, valid.tobytes())[1][axis]
+
+
+@functools.lru_cache(maxsize=16)
+def _chart_stencil(shape, valid_bytes):
+    """Neighbour indices and one-sided factors of a mask, kept: a fit's every step asks for
+    its windows' (the arrays are shared, read-only)."""
+    valid = np.frombuffer(valid_bytes, bool).reshape(shape)
+    own = np.arange(valid.size)
+    indices, factors = {}, {}
+    for axis in (0, 1):
+        for step in (-1, 1):
+            neighbour = neighbour_index(shape, axis, step)
+            indices[axis, step] = np.where(valid.ravel()[neighbour], neighbour, own)
+            indices[axis, step].flags.writeable = False
+        missing = sum((indices[axis, step] == own).astype(int) for step in (-1, 1))
+        factors[axis] = np.where(missing.reshape(shape) == 1, 2.0, 1.0).astype(np.float32)
+        factors[axis].flags.writeable = False
+    return indices, factors
+
+
+def _shifted(height, axis, step, shifts=None, valid=None):
+    """``height`` at each texel's neighbour along ``axis`` (:func:`chart_neighbour_index`)."""
     if shifts is not None:
         Array = type(height.array)
         return type(height)(dr.gather(Array, height.array, shifts[(axis, step)]), height.shape)
-    return take(height, neighbour_index(height.shape[:2], axis, step))
+    return take(height, chart_neighbour_index(valid, axis, step))
 
 
-def height_gradient(height, frame=None):
+def height_gradient(height, frame=None, valid=None):
     """``(dH/du, dH/dv)`` per texel by central differences, in height units per unit ``u``/``v``.
 
     ``u`` runs along columns and ``v`` along rows (texture convention of
     :mod:`polarbssrdf.geometry`); one texel is ``1 / T`` in ``u`` and ``v``.
-    One-sided differences at the borders. ``frame``: a
-    :class:`DeviceHeightFrame` whose shift indices and border factors to reuse
-    (Dr.Jit heights).
+    One-sided differences at the map's borders and at the charts' edges: ``valid``
+    (rows, cols) bool marks the texels on the charts (all, when not given), whose
+    neighbours alone enter a texel's differences. ``frame``: a :class:`DeviceHeightFrame`
+    whose shift indices and border factors to reuse (Dr.Jit heights; its own ``valid``).
     """
     rows, cols = height.shape[0], height.shape[1]
     shifts = None if frame is None else frame.shifts
-    dH_du = (_shifted(height, 1, +1, shifts) - _shifted(height, 1, -1, shifts)) * (0.5 * cols)
-    dH_dv = (_shifted(height, 0, +1, shifts) - _shifted(height, 0, -1, shifts)) * (0.5 * rows)
+    if frame is None:
+        valid = np.ones((rows, cols), bool) if valid is None else np.asarray(valid, bool)
+    dH_du = (_shifted(height, 1, +1, shifts, valid) - _shifted(height, 1, -1, shifts, valid)) * (0.5 * cols)
+    dH_dv = (_shifted(height, 0, +1, shifts, valid) - _shifted(height, 0, -1, shifts, valid)) * (0.5 * rows)
     if frame is not None:
         return dH_du * frame.border_u, dH_dv * frame.border_v
-    # the border differences span one texel, not two
-    border_u = np.ones((rows, cols), np.float32)
-    border_u[:, [0, -1]] = 2.0
-    border_v = np.ones((rows, cols), np.float32)
-    border_v[[0, -1], :] = 2.0
-    return dH_du * constant_like(height, border_u), dH_dv * constant_like(height, border_v)
+    return (dH_du * constant_like(height, one_sided_factor(valid, 1)),
+            dH_dv * constant_like(height, one_sided_factor(valid, 0)))
 
 
 def normals_from_height(height, atlas):
@@ -160,7 +192,7 @@ def normals_from_height(height, atlas):
     frame = atlas if isinstance(atlas, HeightFrame) else height_frame(atlas)
     if not isinstance(height, np.ndarray):
         return _device_normals(height, frame.on_device(type(height)))
-    dH_du, dH_dv = height_gradient(height)
+    dH_du, dH_dv = height_gradient(height, valid=frame.valid)
     n0 = frame.normal
     du = frame.tangent_u + dH_du[..., None] * n0
     dv = frame.tangent_v + dH_dv[..., None] * n0
@@ -184,25 +216,29 @@ def normals_from_slopes(dH_du, dH_dv, normal, tangent_u, tangent_v, orientation)
     return tuple(c * orientation / length for c in n)
 
 
-def height_gradient_adjoint(gradient_u, gradient_v):
+def height_gradient_adjoint(gradient_u, gradient_v, valid=None):
     """Adjoint of :func:`height_gradient` (NumPy): the gradient with respect to ``H`` of a
     function whose gradients with respect to ``dH/du`` and ``dH/dv`` are given.
 
     Parameters
     ----------
     gradient_u, gradient_v : (rows, cols) arrays
+    valid : (rows, cols) bool, optional
+        The texels on the charts, as given to :func:`height_gradient` (all when not given).
 
     Returns
     -------
     (rows, cols) array
     """
     rows, cols = gradient_u.shape
-    weighted_u = gradient_u * (0.5 * cols)
-    weighted_u[:, [0, -1]] *= 2.0
-    weighted_v = gradient_v * (0.5 * rows)
-    weighted_v[[0, -1], :] *= 2.0
-    return (edge_shift_adjoint(weighted_u, 1, 1) - edge_shift_adjoint(weighted_u, 1, -1)
-            + edge_shift_adjoint(weighted_v, 0, 1) - edge_shift_adjoint(weighted_v, 0, -1))
+    valid = np.ones((rows, cols), bool) if valid is None else np.asarray(valid, bool)
+    out = np.zeros(rows * cols, np.result_type(gradient_u, gradient_v))
+    for axis, gradient, per_unit in ((1, gradient_u, 0.5 * cols), (0, gradient_v, 0.5 * rows)):
+        weighted = (gradient * per_unit * one_sided_factor(valid, axis)).ravel()
+        for step, sign in ((1, 1.0), (-1, -1.0)):
+            out += sign * np.bincount(chart_neighbour_index(valid, axis, step), weights=weighted,
+                                      minlength=rows * cols)
+    return out.reshape(rows, cols)
 
 
 def _device_normals(height, frame):

@@ -222,3 +222,68 @@ def test_a_precomputed_height_frame_gives_the_atlas_normals():
     on_device = np.stack([np.array(c) for c in device], axis=-1)
     np.testing.assert_allclose(on_device[atlas.valid], normals_from_height(height, atlas)[atlas.valid],
                                atol=2e-6)
+
+
+# --- a chart's edge (issue 33): the texels beyond it carry no surface of the chart ---
+
+
+def _chart_mask(shape=(24, 30)):
+    """An L-shaped chart away from the map's border, with a notch: edges along rows and columns."""
+    valid = np.zeros(shape, bool)
+    valid[3:20, 4:26] = True
+    valid[3:10, 15:26] = False
+    valid[12, 8] = False
+    return valid
+
+
+def test_a_ramp_has_its_slope_on_every_texel_of_a_chart_edges_included():
+    """Central differences inside a chart, one-sided at its edge: a linear height has its exact
+    slope everywhere on the chart, whatever the texels off it hold (before, their zeros entered
+    the edge texels' differences)."""
+    valid = _chart_mask()
+    rows, cols = valid.shape
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    # per unit u one texel is 1/cols: H = a j / cols + b i / rows has dH/du = a, dH/dv = b
+    a, b = 0.7, -0.4
+    ramp = a * j / cols + b * i / rows + 3.0
+    off_chart = np.where(valid, ramp, np.random.default_rng(2).normal(size=valid.shape) * 50)
+    dH_du, dH_dv = height_gradient(off_chart, valid=valid)
+    np.testing.assert_allclose(np.asarray(dH_du)[valid], a, rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(dH_dv)[valid], b, rtol=1e-5)
+    edge_u, _ = height_gradient(np.where(valid, ramp, 0.0))  # the chart's edge unknown
+    assert np.abs(np.asarray(edge_u)[valid] - a).max() > 1.0
+
+
+def test_a_constant_height_on_a_chart_tilts_no_normal(patch_atlas):
+    """A constant displacement over a chart moves it along its normals and tilts none, at its
+    edge too: the normals are the atlas's, on the NumPy and on the Dr.Jit path."""
+    import dataclasses
+
+    from polarbssrdf.geometry.height import height_frame
+
+    chart = np.zeros(patch_atlas.valid.shape, bool)
+    chart[20:100, 30:110] = True
+    frame = dataclasses.replace(height_frame(patch_atlas), valid=chart)
+    level = np.where(chart, 0.8, 0.0).astype(np.float32)
+    numpy_normals = normals_from_height(level, frame)
+    np.testing.assert_allclose(numpy_normals[chart], frame.normal[chart], atol=1e-6)
+    device = normals_from_height(mi.TensorXf(level), frame.on_device(mi.TensorXf))
+    for k in range(3):
+        np.testing.assert_allclose(np.array(device[k])[chart], frame.normal[chart][:, k], atol=1e-6)
+
+
+def test_the_adjoint_on_a_chart_is_the_transpose_of_its_differences():
+    """<D H, g> = <H, D^T g> with the chart's one-sided edges (float64)."""
+    from polarbssrdf.geometry.height import height_gradient_adjoint
+
+    rng = np.random.default_rng(5)
+    valid = _chart_mask()
+    height = rng.normal(size=valid.shape)
+    g_u, g_v = rng.normal(size=height.shape), rng.normal(size=height.shape)
+    dH_du, dH_dv = (np.asarray(d, np.float64) for d in height_gradient(height, valid=valid))
+    forward = np.sum(dH_du * g_u) + np.sum(dH_dv * g_v)
+    adjoint = height_gradient_adjoint(g_u, g_v, valid)
+    assert forward == pytest.approx(np.sum(height * adjoint), rel=1e-6)
+    # a texel off the chart feeds no difference on it
+    on_chart = height_gradient_adjoint(np.where(valid, g_u, 0.0), np.where(valid, g_v, 0.0), valid)
+    np.testing.assert_array_equal(on_chart[~valid], 0.0)

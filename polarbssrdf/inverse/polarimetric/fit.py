@@ -53,6 +53,7 @@ import drjit as dr
 import numpy as np
 from tqdm import tqdm
 
+from polarbssrdf._arrays import to_jit
 from polarbssrdf.geometry.height import normals_from_height
 from polarbssrdf.inverse.polarimetric.config import OPTIMIZED
 from polarbssrdf.inverse.polarimetric.model import GLOSSY_PARAMETERS, half_vector_cosine
@@ -73,6 +74,7 @@ from polarbssrdf.inverse.polarimetric.optimize import (
 )
 from polarbssrdf.inverse.polarimetric.patches import PatchCache, patch_order, texture_patches
 from polarbssrdf.inverse.polarimetric.posterior import map_posterior_std
+from polarbssrdf.inverse.polarimetric.relief_level import chart_level_variance, relief_at_prior_level
 from polarbssrdf.inverse.results.fill import fill_from_neighbours
 from polarbssrdf.io.atomic import atomic_write_bytes
 
@@ -496,6 +498,16 @@ def final_maps(params, atlas, confidence, band_names, specular_peak_angle=None, 
     return channels
 
 
+def set_relief_at_prior_level(params, valid):
+    """Set each chart's displacement to the level its prior gives it, mean 0
+    (:mod:`~polarbssrdf.inverse.polarimetric.relief_level`): no view sees the level, and
+    the optimizer's steps leave it wherever their path ended."""
+    maps = params.to_numpy()
+    maps["displacement"] = relief_at_prior_level(maps["displacement"], valid).astype(np.float32)
+    variables = params.variables_of(maps)
+    params.optimizer["displacement"] = to_jit(params.TensorXf, variables["displacement"], np.float32)
+
+
 def blur_in_texels(blur_mm, atlas):
     """``(s_u, s_v)``: the variance (texels^2) along ``u`` and ``v`` of a blur of std
     ``blur_mm`` at the atlas's median texel size; ``None`` for ``None``."""
@@ -524,6 +536,8 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
         name for name in GLOSSY_PARAMETERS if name in optimized and name not in (start or {}))
     history, cache, face_start = optimize_maps(store, atlas, config, params, checkpoint, progress,
                                                weights, description, face_levels)
+    if "displacement" in params.optimized:
+        set_relief_at_prior_level(params, atlas.valid)
     patches = texture_patches(atlas.resolution, config.patch_size, store.block_size)
     statistics = texel_statistics(params, cache, patches, config)
     confidence = screening_confidence(statistics, params.rho_sss, atlas.valid, config)
@@ -532,6 +546,10 @@ def run_polarimetric_fit(store, atlas, config, *, start=None, checkpoint=None, p
     weights, noise = active_weights(config, weights), epoch_noise(config, history)
     std = map_posterior_std(params, cache, patches, config, weights, noise, store.bands,
                             blur_in_texels(config.capture_blur_mm, atlas))
+    if "displacement_std" in std:
+        level = chart_level_variance(params.to_numpy()["displacement"], atlas.valid)
+        std["displacement_std"] = np.sqrt(np.square(std["displacement_std"].astype(np.float64))
+                                          + level).astype(np.float32)
     maps = final_maps(params, atlas, confidence, store.bands, statistics.specular_peak_angle, std)
     confident = (confidence > 0) & atlas.valid
     held = unresolved_maps(maps, confident,

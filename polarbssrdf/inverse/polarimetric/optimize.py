@@ -227,7 +227,7 @@ def window_slopes(height_window, prepared):
     """``(dH/du, dH/dv)`` over the window (flat Float, detached) from its displacement."""
     _, _, _, TensorXf = jit_types()
     shape = prepared.window_valid.shape
-    # off-mesh texels carry no surface: keep their H out of the valid texels' differences
+    # off-mesh texels carry no surface: the frame's differences are one-sided there
     height = TensorXf(dr.detach(height_window) * prepared.window_valid_jit, shape)
     return tuple(slope.array for slope in height_gradient(height, prepared.height_frame))
 
@@ -612,7 +612,8 @@ def _leaf_gradients(leaves, prepared):
     if SLOPES[0] in window:
         shape = prepared.window_valid.shape
         height = height_gradient_adjoint(window.pop(SLOPES[0]).reshape(shape),
-                                         window.pop(SLOPES[1]).reshape(shape))
+                                         window.pop(SLOPES[1]).reshape(shape),
+                                         prepared.window_valid)
         window["displacement"] = (height * prepared.window_valid).ravel()
     return window, dropped
 

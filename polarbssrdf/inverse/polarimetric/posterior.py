@@ -51,6 +51,8 @@ What is computed, and the approximations made (each stated, none hidden):
    The capture's blur (:func:`blur_transfer`, ``config.capture_blur_mm``)
    hides relief finer than the pixels' footprint: the std counts that detail
    as the prior's.
+5. **The relief's level** over each chart, which no view sees, is added by the
+   static stage (:mod:`polarbssrdf.inverse.polarimetric.relief_level`), not here.
 
 Error the cameras share and an optimizer that stopped short of the minimum
 are not in it, which is what the coverage of

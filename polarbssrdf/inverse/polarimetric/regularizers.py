@@ -132,15 +132,20 @@ _LAPLACIAN_NEIGHBOURS = ((0, -1), (0, 1), (1, -1), (1, 1))
 def displacement_laplacian(height, stencils):
     """``L_Hsreg = mean((lap H)^2)`` with the 5-point Laplacian in texels (eq. 34), and its gradient.
 
-    Neighbours beyond the window's edge are clamped to it. Units mm^2;
-    see :func:`displacement_magnitude` for parameters and returns.
+    A neighbour beyond the window's edge or off the charts (``stencils.valid`` 0) is
+    left out, ``lap H = sum over the valid neighbours of (H_k - H)``: the chart's edge is a
+    free border (no surface beyond it, so nothing pins its height), and a constant height
+    over a chart costs nothing, as it tilts no normal. Units mm^2; see
+    :func:`displacement_magnitude` for parameters and returns.
     """
     H = _as_window(height, stencils)
-    laplacian = sum(edge_shift(H, axis, step) for axis, step in _LAPLACIAN_NEIGHBOURS) - 4.0 * H
+    present = [edge_shift(stencils.valid, axis, step) for axis, step in _LAPLACIAN_NEIGHBOURS]
+    laplacian = sum(weight * (edge_shift(H, axis, step) - H)
+                    for weight, (axis, step) in zip(present, _LAPLACIAN_NEIGHBOURS))
     residual = stencils.interior * laplacian
     value, scale = _mean_square(residual, stencils)
-    adjoint = sum(edge_shift_adjoint(residual, axis, step)
-                  for axis, step in _LAPLACIAN_NEIGHBOURS) - 4.0 * residual
+    adjoint = sum(edge_shift_adjoint(weight * residual, axis, step) - weight * residual
+                  for weight, (axis, step) in zip(present, _LAPLACIAN_NEIGHBOURS))
     return value, scale * adjoint
 
 
