@@ -43,7 +43,8 @@ gave slope 0.75 and normals 0.61 deg mean (texel-scale noise let through), 100 g
 and 0.52 deg (median 0.38), 300 gave 0.42 and 0.51 deg (median 0.41), against 0.55 deg
 (median 0.49) with the old weights and 0.63 deg for the base mesh (2026-12-05,
 bench/RESULTS.md). ``H_magnitude`` 0.01 keeps only the mean of each chart's relief
-anchored to the base mesh."""
+anchored to the base mesh: the stage sets that mean to the prior's 0 after the fit
+(:mod:`~polarbssrdf.inverse.polarimetric.relief_level`), since no view sees it."""
 
 BOUNDS = {
     "eta": (1.3, 1.6), "alpha_s": (0.1, 0.7), "alpha_ss": (0.7, 1.0),

@@ -391,11 +391,9 @@ an upper bound that over-covers rho_s and rho_ss. alpha_ss is held at 0.981 for 
 held levels took before 2026-12-07, whose gradient was wrong: see
 test_the_texel_gradient_and_chi_square_are_those_of_the_residuals; the fitted mean they hold
 now took rho_ss's MAE from 0.105 to 0.073, alpha_s's from 0.062 to 0.058).
-The displacement (no relief in the truth) comes out at a mean of 0.033 mm: a constant
-displacement leaves every normal as it is, and only H_magnitude's weak
-pull (2.4 mm std per texel, over this 32^2 patch) holds it. On the demo face (one 256^2
-patch) it covers 0.91 since its noise is the cameras' disagreement (0.40 before,
-bench/RESULTS.md): here the std over-covers, there it is in range."""
+The displacement (no relief in the truth) is set to its prior's level, mean 0
+(relief_level.py; before, the optimizer left it at 0.033 mm), and its std over-covers here.
+On the demo captures it covers 0.95-0.975 (bench/RESULTS.md)."""
 
 
 @pytest.mark.parametrize("name", ["eta", "rho_s", "alpha_s", "rho_ss", "alpha_ss",
