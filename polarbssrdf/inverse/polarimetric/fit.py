@@ -499,9 +499,9 @@ def final_maps(params, atlas, confidence, band_names, specular_peak_angle=None, 
 
 
 def set_relief_at_prior_level(params, valid):
-    """Set each chart's displacement to the level its prior gives it, mean 0
+    """Shift each chart's displacement to the magnitude prior's level, mean 0
     (:mod:`~polarbssrdf.inverse.polarimetric.relief_level`): no view sees the level, and
-    the optimizer's steps leave it wherever their path ended."""
+    the edge's tie to the base mesh and the optimizer's path leave it off the truth's."""
     maps = params.to_numpy()
     maps["displacement"] = relief_at_prior_level(maps["displacement"], valid).astype(np.float32)
     variables = params.variables_of(maps)

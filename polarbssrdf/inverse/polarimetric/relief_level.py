@@ -3,17 +3,19 @@
 The views see the displacement only through its slopes (supplement eq. 25), and the
 slopes are differences within a chart (one-sided at its edge,
 :func:`polarbssrdf.geometry.height.chart_neighbour_index`): a constant height added to
-a chart tilts no normal and changes no data term, nor the Laplacian prior (eq. 34, free
-at the chart's edge). Of the loss, only the magnitude prior (eq. 33, ``mean(H^2)``) sees
-it, with a weight chosen to be weak, so a gradient-based fit moves it hardly at all and
-the level ends where the optimizer's path left it (on the demo captures 0.005-0.029 mm
-from the truth's, about the relief std's size, bench/RESULTS.md).
+a chart tilts no normal and changes no data term. Of the priors, the magnitude prior
+(eq. 33, ``mean(H^2)``, weak by design) sees it, and the Laplacian prior (eq. 34) at the
+chart's edge, where it ties the relief to the base mesh
+(:func:`~polarbssrdf.inverse.polarimetric.regularizers.displacement_laplacian`). The
+truth's relief does not vanish at the edge (0.087 mm rms there on the demo face), so the
+level that tie and the optimizer's path leave is off by 0.007-0.042 mm on the test
+captures (0.020 mm rms over six), about the relief std's size (bench/RESULTS.md).
 
-So the level is taken out of the optimizer's hands:
+So the level is set by the magnitude prior alone, after the fit:
 
-1. each chart's relief is set to the level the prior puts it at, its mean 0 over the
-   chart (:func:`relief_at_prior_level`), the minimum of the loss along that direction
-   (exact for a fit on one patch; a fit on several weights its patches' texels alike);
+1. each chart's relief is shifted to that prior's level, mean 0 over the chart
+   (:func:`relief_at_prior_level`), which leaves every normal as it is (0.013 mm rms
+   from the truth's level over the same six captures);
 2. its error is then the truth's own mean over the chart, which no view measures: its
    variance is estimated from the relief's variation at the chart's scale, by the method
    of batch means (:func:`chart_level_variance`; Künsch, Ann. Statist. 17, 1989, for

@@ -1,9 +1,8 @@
 """The relief's level: set by its prior, with the spread of the level no view measures.
 
-A constant height over a chart tilts no normal, so the data and the Laplacian prior do not
-see it (tests/geometry/test_geometry_height.py, tests/inverse/polarimetric/test_losses.py);
-the fit puts each chart at its prior's level, mean 0, and the relief's std adds the
-truth's unknown mean over the chart.
+A constant height over a chart tilts no normal, so the data do not see it
+(tests/geometry/test_geometry_height.py); the fit puts each chart at the magnitude prior's
+level, mean 0, and the relief's std adds the truth's unknown mean over the chart.
 """
 
 import numpy as np
