@@ -146,8 +146,10 @@ def height_gradient(height, frame=None, valid=None):
     shifts = None if frame is None else frame.shifts
     if frame is None:
         valid = np.ones((rows, cols), bool) if valid is None else np.asarray(valid, bool)
-    dH_du = (_shifted(height, 1, +1, shifts, valid) - _shifted(height, 1, -1, shifts, valid)) * (0.5 * cols)
-    dH_dv = (_shifted(height, 0, +1, shifts, valid) - _shifted(height, 0, -1, shifts, valid)) * (0.5 * rows)
+    dH_du = ((_shifted(height, 1, +1, shifts, valid) - _shifted(height, 1, -1, shifts, valid))
+             * (0.5 * cols))
+    dH_dv = ((_shifted(height, 0, +1, shifts, valid) - _shifted(height, 0, -1, shifts, valid))
+             * (0.5 * rows))
     if frame is not None:
         return dH_du * frame.border_u, dH_dv * frame.border_v
     return (dH_du * constant_like(height, one_sided_factor(valid, 1)),

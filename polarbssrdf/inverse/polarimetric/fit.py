@@ -74,7 +74,10 @@ from polarbssrdf.inverse.polarimetric.optimize import (
 )
 from polarbssrdf.inverse.polarimetric.patches import PatchCache, patch_order, texture_patches
 from polarbssrdf.inverse.polarimetric.posterior import map_posterior_std
-from polarbssrdf.inverse.polarimetric.relief_level import chart_level_variance, relief_at_prior_level
+from polarbssrdf.inverse.polarimetric.relief_level import (
+    chart_level_variance,
+    relief_at_prior_level,
+)
 from polarbssrdf.inverse.results.fill import fill_from_neighbours
 from polarbssrdf.io.atomic import atomic_write_bytes
 
@@ -505,7 +508,8 @@ def set_relief_at_prior_level(params, valid):
     maps = params.to_numpy()
     maps["displacement"] = relief_at_prior_level(maps["displacement"], valid).astype(np.float32)
     variables = params.variables_of(maps)
-    params.optimizer["displacement"] = to_jit(params.TensorXf, variables["displacement"], np.float32)
+    params.optimizer["displacement"] = to_jit(params.TensorXf, variables["displacement"],
+                                              np.float32)
 
 
 def blur_in_texels(blur_mm, atlas):
