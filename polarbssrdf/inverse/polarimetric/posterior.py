@@ -191,10 +191,11 @@ def texel_view_scores(jacobians, band_of, values):
     return scores
 
 
-def information_from_jacobians(jacobians, band_of, usable, values, prepared):
+def information_from_jacobians(jacobians, band_of, usable, values, prepared, scores=None):
     """:func:`texel_information` from :func:`residual_jacobians`' outputs made finite
     (:func:`finite_jacobians`), so one pass of derivatives serves the information and
-    :func:`displacement_noise_inflation`."""
+    :func:`displacement_noise_inflation`; ``scores``: their :func:`texel_view_scores`
+    when the caller has them."""
     n_window = len(prepared.window_index)
     n_bands = len(prepared.observed)
     texel = np.asarray(prepared.texel_numpy)
@@ -205,7 +206,8 @@ def information_from_jacobians(jacobians, band_of, usable, values, prepared):
     def per_texel(values):
         return np.bincount(texel, weights=values, minlength=n_window)
 
-    scores = texel_view_scores(jacobians, band_of, values)
+    if scores is None:
+        scores = texel_view_scores(jacobians, band_of, values)
     gradient = np.stack([per_texel(scores[:, a]) for a in range(P)], axis=1)
     for a in range(K):
         for b in range(a, K):
@@ -473,19 +475,19 @@ def blur_transfer(shape, blur_texels2):
     return np.exp(-0.5 * (s_u * np.square(omega_u) + s_v * np.square(omega_v)))
 
 
-def displacement_noise_inflation(jacobians, band_of, values, information, prior, prepared,
+def displacement_noise_inflation(jacobians, scores, information, prior, prepared,
                                  slope_precision, seen):
     """:func:`view_noise_inflation` of a window's displacement from one pass of
-    :func:`residual_jacobians` made finite (``jacobians``, ``band_of``, ``values``), the
-    texels' ``information``, the parameters' ``prior`` precisions, the slopes' marginal
-    precision per texel and the ``seen`` texels of the window."""
+    :func:`residual_jacobians` made finite (``jacobians``) and its texel-views'
+    :func:`texel_view_scores`, the texels' ``information``, the parameters' ``prior``
+    precisions, the slopes' marginal precision per texel and the ``seen`` texels of the
+    window."""
     shape = prepared.window_valid.shape
     if not np.any(seen):
         return np.ones(shape)
     texel = np.asarray(prepared.texel_numpy)
     camera = np.asarray(prepared.camera_numpy)
-    efficient = efficient_slope_scores(texel_view_scores(jacobians, band_of, values),
-                                       information, prior, texel)
+    efficient = efficient_slope_scores(scores, information, prior, texel)
     share = camera_slope_share(jacobians, texel, camera, len(prepared.window_index))
     n_seen = max(int(np.sum(seen)), 1)
     power = camera_score_power(efficient, share, camera, texel, shape) / n_seen
@@ -503,8 +505,9 @@ def patch_posterior_std(params, prepared, config, weights, noise, blur_texels2=N
     jacobians, band_of, usable, values = residual_jacobians(params, prepared, config, weights,
                                                             noise)
     jacobians, values = finite_jacobians(jacobians, values)
+    scores = texel_view_scores(jacobians, band_of, values)
     information, _, counts, _ = information_from_jacobians(jacobians, band_of, usable, values,
-                                                           prepared)
+                                                           prepared, scores)
     n_bands = len(prepared.observed)
     prior = prior_precisions(config, n_bands)
     variances, slope_precision = marginal_variances(information, prior)
@@ -531,8 +534,8 @@ def patch_posterior_std(params, prepared, config, weights, noise, blur_texels2=N
     if "displacement" in params.optimized:
         floor = (regularizer_precision(weights, "H_magnitude", used, stencils.count)
                  + uniform_prior_precision(*config.bounds["displacement"]))
-        inflation = displacement_noise_inflation(jacobians, band_of, values, information,
-                                                 prior, prepared, slope_precision, seen)
+        inflation = displacement_noise_inflation(jacobians, scores, information, prior,
+                                                 prepared, slope_precision, seen)
         variance = spatial_variance(
             observed["H_laplacian"], np.where(seen, slope_precision, np.nan),
             slope_symbol_squared(shape),
