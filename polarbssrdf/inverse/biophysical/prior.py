@@ -40,6 +40,7 @@ from scipy import fft, sparse
 from scipy.stats import chi2
 
 from polarbssrdf._arrays import masked_low_pass
+from polarbssrdf._linalg import batched_spd_inverse
 from polarbssrdf.skin.parameters import TABLE2, TABLE2_STD
 
 DEFAULT_CORRELATION_MM = 5.0
@@ -486,7 +487,7 @@ def _local_posterior(data_precision, held, area_mm2, tau2, correlation_mm, order
         u = area * (1.0 + l2 * value / area) ** order
         g = 1.0 if gain is None else gain[j][:, None, None]
         prior = (u[:, :f] / tau2[:, :f])[:, :, None] * eye
-        inverse = np.linalg.inv(g * C[:, :f, :f] + prior)
+        inverse = batched_spd_inverse(g * C[:, :f, :f] + prior)
         if spectrum is None:
             term = inverse
         else:
