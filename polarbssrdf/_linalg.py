@@ -11,9 +11,10 @@ def batched_spd_inverse(matrices):
     ``L L^T = A``, ``W = L^-1``, ``A^-1 = W^T W``, with the loops over the k x k
     entries unrolled in Python and each entry one NumPy array over the batch:
     for the 3-6 parameters a texel has, NumPy's batched ``inv`` is a LAPACK call
-    per matrix, about 5x slower on 12,000 4 x 4 matrices (bench/RESULTS.md,
-    2026-12-07). Cholesky needs no pivoting on a positive-definite matrix and is
-    backward stable for it whatever its scaling. A matrix whose Cholesky meets a
+    per matrix, 1.5-5x slower on 12,000 4 x 4 matrices
+    (bench/bench_spd_inverse.py, bench/RESULTS.md, 2026-12-07). Cholesky needs no
+    pivoting on a positive-definite matrix and is backward stable for it whatever
+    its scaling. A matrix whose Cholesky meets a
     pivot that is not positive and finite (not positive definite to working
     precision) is inverted by ``numpy.linalg.inv`` instead, so the result is
     never worse than NumPy's.
