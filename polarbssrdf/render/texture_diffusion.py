@@ -12,8 +12,9 @@ of the atlas. Gaussians narrower than half a texel are the identity at this
 resolution.
 
 A whole sum of Gaussians is two fused Dr.Jit kernels: the ``u`` passes of
-every Gaussian in one (all taps of all Gaussians gathered in one loop over
-the texels), the ``v`` passes and the weighted sum in the other; on the
+every Gaussian in one (all taps of all Gaussians gathered in one symbolic loop
+over the offsets, whose bound and half widths are kernel inputs, so the kernel
+is the same whatever the widths), the ``v`` passes and the weighted sum in the other; on the
 backend of a Dr.Jit input or on the LLVM backend for NumPy input. Each
 Gaussian keeps its own normalization per pass, precomputed once per atlas
 and variance (:class:`BlurGeometry`). With an AD-enabled Dr.Jit input the
@@ -119,28 +120,37 @@ def blur_geometry(texel_size_mm, valid_mask, module):
     return entry
 
 
-def _neighbours(axis, geometry, offset, sign):
-    """(inside, flat index) of the texel ``sign * offset`` away along ``axis``."""
-    import drjit as dr
+class _Lines:
+    """Where each texel sits on its line along ``axis``; :meth:`neighbour` steps along it."""
 
-    module = geometry.module
-    UInt32, Int32 = module.UInt32, module.Int32
-    rows, cols = geometry.shape
-    # the texture's size enters as kernel inputs, not literals: one compiled blur serves
-    # every texture size (a literal compiled the blur's 40-70 kernels anew per size)
-    sizes = geometry.__dict__.get("_opaque_sizes")
-    if sizes is None:
-        sizes = geometry._opaque_sizes = (dr.opaque(UInt32, cols), dr.opaque(Int32, rows),
-                                          dr.opaque(Int32, cols))
-    cols_u, rows_i, cols_i = sizes
-    index = dr.arange(UInt32, rows * cols)
-    row, col = index // cols_u, index % cols_u
-    position = Int32(col if axis == 1 else row)
-    length = cols_i if axis == 1 else rows_i
-    target = position + sign * offset
-    inside = (target >= 0) & (target < length)
-    clamped = UInt32(dr.clip(target, 0, length - 1))
-    return inside, (row * cols_u + clamped if axis == 1 else clamped * cols_u + col)
+    def __init__(self, axis, geometry):
+        import drjit as dr
+
+        module = geometry.module
+        UInt32, Int32 = module.UInt32, module.Int32
+        rows, cols = geometry.shape
+        # the texture's size enters as kernel inputs, not literals: one compiled blur serves
+        # every texture size (a literal compiled the blur's 40-70 kernels anew per size)
+        sizes = geometry.__dict__.get("_opaque_sizes")
+        if sizes is None:
+            sizes = geometry._opaque_sizes = (dr.opaque(UInt32, cols), dr.opaque(Int32, rows),
+                                              dr.opaque(Int32, cols))
+        self.cols, rows_i, cols_i = sizes
+        self.axis, self.UInt32 = axis, UInt32
+        index = dr.arange(UInt32, rows * cols)
+        self.row, self.col = index // self.cols, index % self.cols
+        self.position = Int32(self.col if axis == 1 else self.row)
+        self.length = cols_i if axis == 1 else rows_i
+
+    def neighbour(self, step):
+        """(inside, flat index) of the texel ``step`` (an Int32 array) away along the axis."""
+        import drjit as dr
+
+        target = self.position + step
+        inside = (target >= 0) & (target < self.length)
+        clamped = self.UInt32(dr.clip(target, 0, self.length - 1))
+        index = self.row * self.cols + clamped if self.axis == 1 else clamped * self.cols + self.col
+        return inside, index
 
 
 def _tap_sums(sources, variances, half_widths, axis, geometry, adjoint=False):
@@ -150,36 +160,52 @@ def _tap_sums(sources, variances, half_widths, axis, geometry, adjoint=False):
     sources are valid-masked (a ``None`` source sums the weights of the valid
     taps: the normalization). Adjoint: ``t`` is the size of the texel the
     tap comes from (``i - o``), as the transpose of the forward pass needs.
+
+    Each Gaussian's offsets are a symbolic loop (``dr.while_loop``) whose bound, its half
+    width, is a kernel input: one small kernel per number of Gaussians, axis and direction,
+    whatever the widths. Unrolled, a pass of a skin profile's Gaussians was one kernel of
+    5,000-8,000 operations that LLVM took several seconds to compile, a new one for every set
+    of widths (bench/RESULTS.md, 2026-12-08). A loop per Gaussian, not one over the widest
+    with the narrower masked: a profile's widths differ tenfold, and the masked taps made a
+    512^2 biophysical loss twice as slow.
     """
     import drjit as dr
 
-    Float = geometry.module.Float
-    size = geometry.shape[0] * geometry.shape[1]
+    module = geometry.module
+    Float, Int32 = module.Float, module.Int32
     texel_mm = geometry.texel_mm_jit[axis]
-    totals = [dr.zeros(Float, size) for _ in sources]
-    if not adjoint:
-        # g(o, t) = q^(o^2) with q = exp(-t^2 / 2v): two products per tap instead of an exp
-        q = [dr.exp(dr.square(texel_mm) * dr.opaque(Float, -0.5 / v)) for v in variances]
-        weight = [Float(1.0) for _ in sources]
-        ratio = list(q)  # q^(2o - 1) at offset o
-        q2 = [dr.square(x) for x in q]
-    for offset in range(0, max(half_widths) + 1):
-        if not adjoint and offset > 0:
-            for j in range(len(sources)):
-                weight[j] = weight[j] * ratio[j]
-                ratio[j] = ratio[j] * q2[j]
-        for sign in ((1,) if offset == 0 else (1, -1)):
-            inside, neighbour = _neighbours(axis, geometry, offset, -sign if adjoint else sign)
-            if adjoint:
-                distance2 = float(offset * offset) * dr.square(dr.gather(Float, texel_mm, neighbour))
-            for j, (source, variance, half_width) in enumerate(zip(sources, variances,
-                                                                      half_widths)):
-                if offset > half_width:
-                    continue
-                tap = (dr.exp(distance2 * dr.opaque(Float, -0.5 / variance)) if adjoint
-                       else weight[j])
-                value = dr.gather(Float, geometry.valid if source is None else source, neighbour)
-                totals[j] += dr.select(inside, tap * value, 0.0)
+    lines = _Lines(axis, geometry)
+    totals = []
+    for source, variance, half_width in zip(sources, variances, half_widths):
+        values = geometry.valid if source is None else source
+        # the Gaussians change with the skin and the band: kernel inputs, not literals
+        scale, width = dr.opaque(Float, -0.5 / variance), dr.opaque(Int32, half_width)
+
+        def taps(offset, *state):
+            return offset <= width
+
+        def step(offset, total, *recursion):
+            if not adjoint:  # q^(o^2) = q^((o-1)^2) q^(2o - 1)
+                weight, ratio = recursion
+                weight, ratio = weight * ratio, ratio * q2
+            for sign in (1, -1):
+                inside, neighbour = lines.neighbour(offset * (-sign if adjoint else sign))
+                if adjoint:
+                    distance2 = Float(offset * offset) * dr.square(dr.gather(Float, texel_mm, neighbour))
+                    tap = dr.exp(distance2 * scale)
+                else:
+                    tap = weight
+                total = total + tap * dr.gather(Float, values, neighbour, inside)
+            return (offset + 1, total) + (() if adjoint else (weight, ratio))
+
+        recursion = ()
+        if not adjoint:
+            # g(o, t) = q^(o^2) with q = exp(-t^2 / 2v): two products per tap instead of an exp
+            q = dr.exp(dr.square(texel_mm) * scale)
+            recursion, q2 = (Float(1.0), q), dr.square(q)
+        # offset 0 weighs 1 and is always inside
+        state = dr.while_loop((Int32(1), Float(values)) + recursion, taps, step)
+        totals.append(state[1])
     return totals
 
 

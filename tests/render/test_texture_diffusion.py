@@ -177,3 +177,38 @@ def test_other_weights_and_unaligned_input_reuse_the_blur_kernels():
     expected = (0.1 * unaligned + 0.6 * blur_separable(unaligned, 0.1, sizes, valid)
                 + 0.3 * blur_separable(unaligned, 0.8, sizes, valid))
     np.testing.assert_allclose(out, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_other_widths_reuse_the_blur_kernels_and_the_adjoint_is_the_transpose():
+    """The taps are a symbolic loop whose bound and half widths are kernel inputs: a blur of
+    other variances (5 and 23 taps a side where the first had 7 and 18) compiles nothing,
+    forward or reverse. Unrolled, each set of widths was a kernel of its own, thousands of
+    operations long. The reverse pass stays the forward blur's transpose:
+    ``<w, B x> = <B^T w, x>``."""
+    TensorXf = dr.llvm.ad.TensorXf
+    sizes, valid = patch(0.2, 0.25)
+    valid = valid.copy()
+    valid[:, :9] = False  # an atlas border the taps must not cross
+    rng = np.random.default_rng(4)
+    image = rng.uniform(size=(T, T)).astype(np.float32)
+    weights = rng.uniform(size=(T, T)).astype(np.float32)
+
+    def blur_and_adjoint(variances):
+        x = TensorXf(image)
+        dr.enable_grad(x)
+        y = blur_sum_of_gaussians(x, [0.4, 0.6], variances, sizes, valid)
+        dr.backward(dr.sum(y * TensorXf(weights), axis=None))
+        return y.numpy(), x.grad.numpy()
+
+    blur_and_adjoint([0.1, 0.8])
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history_clear()
+        out, adjoint = blur_and_adjoint([0.05, 1.3])
+        history = dr.kernel_history([dr.KernelType.JIT])
+    compiled = [h["hash"] for h in history if not h["cache_hit"] or h["cache_disk"]]
+    assert history and not compiled, f"{len(compiled)} of {len(history)} blur kernels compiled anew"
+    expected = 0.4 * blur_separable(image, 0.05, sizes, valid) + 0.6 * blur_separable(image, 1.3, sizes, valid)
+    np.testing.assert_allclose(out, expected, rtol=1e-5, atol=1e-6)
+    forward = float(np.sum(weights.astype(np.float64) * out))
+    assert float(np.sum(adjoint.astype(np.float64) * image)) == pytest.approx(forward, rel=1e-5)
+    assert np.all(adjoint[~valid] == 0.0)

@@ -69,19 +69,22 @@ class _Table:
         self.coefficients = [[to_jit(Float, np.ravel(c), np.float32) for c in quantity]
                              for quantity in coefficients]
 
-    def __call__(self, u, row):
-        """Values of every quantity at ``u`` (Dr.Jit Float) in eta row ``row`` (UInt32)."""
+    def __call__(self, u, row, slopes=False):
+        """Values of every quantity at ``u`` (Dr.Jit Float) in eta row ``row`` (UInt32), and
+        with ``slopes`` their derivatives d/du of the interpolant as a second list."""
 
         Float, UInt32, _ = jit_types()
         x = (u - self.u0) * self.inv_h
         cell = dr.clip(dr.floor(dr.detach(x)), 0, self.cells - 1)
         t = x - cell
         index = row * self.cells + UInt32(cell)
-        out = []
+        out, derivatives = [], []
         for a0, a1, a2, a3 in self.coefficients:
             g = [dr.gather(Float, c, index) for c in (a0, a1, a2, a3)]
             out.append(g[0] + t * (g[1] + t * (g[2] + t * g[3])))
-        return out
+            if slopes:
+                derivatives.append((g[1] + t * (2.0 * g[2] + 3.0 * t * g[3])) * self.inv_h)
+        return (out, derivatives) if slopes else out
 
 
 def _hermite_coefficients(f, m, h):
@@ -157,7 +160,8 @@ class BiophysicalModel:
             self._frac = to_jit(Float, position - row, np.float32)
         else:
             self._row, self._frac = to_jit(UInt32, np.zeros(eta.size), np.uint32), None
-        self.inverse_exit_fraction = to_jit(Float, (1.0 / subsurface_exit_fraction(eta)).ravel(), np.float32)
+        self.inverse_exit_fraction_numpy = 1.0 / subsurface_exit_fraction(eta).ravel()
+        self.inverse_exit_fraction = to_jit(Float, self.inverse_exit_fraction_numpy, np.float32)
         self.irradiance = to_jit(TensorXf, atlas.valid, np.float32)
         # the band weights change with the bands: kernel inputs, not literals
         self._weights_jit = [[dr.opaque(Float, float(w)) for w in row] for row in self.weights]
@@ -217,17 +221,37 @@ class BiophysicalModel:
         return layer_absorption(*self._absorption_basis[node], *(params[n] for n in PARAMETERS))
 
     def layer_totals(self, node, params):
-        """The five layer totals (flat Dr.Jit Floats) at quadrature ``node`` at every texel."""
+        """The five layer totals (flat Dr.Jit Floats, evaluated) at quadrature ``node`` at
+        every texel.
+
+        With autodiff enabled on the parameters, each total is its evaluated value ``T``
+        plus ``T'(u) (u - detach(u))`` (``u = ln sigma_a`` of its layer, ``T'`` the
+        interpolant's slope, evaluated with ``T``): the same value, and derivatives that
+        reach the parameters through ``u`` alone. Traced through the tables instead, every
+        derivative kernel re-ran every node's table lookups: 2,000-6,000 operations per
+        kernel and 2-9 s of LLVM each (bench/RESULTS.md, 2026-12-07). One node's kernel
+        serves every node (the nodes differ in kernel inputs only)."""
 
         sa_out, sa_in = self.absorption(node, params)
+        u_out, u_in = dr.log(sa_out), dr.log(sa_in)
+        tracked = dr.grad_enabled(u_out) or dr.grad_enabled(u_in)
         epidermis, dermis = self.tables[node]
-        u_out = dr.log(sa_out)
-        values = epidermis(u_out, self._row)
+        values, slopes = epidermis(dr.detach(u_out), self._row, slopes=True)
         if self._frac is not None:
-            upper = epidermis(u_out, self._row + 1)
+            upper, upper_slopes = epidermis(dr.detach(u_out), self._row + 1, slopes=True)
             values = [a + self._frac * (c - a) for a, c in zip(values, upper)]
-        (R_in,) = dermis(dr.log(sa_in), self._row * 0)
-        return values + [R_in]
+            slopes = [a + self._frac * (c - a) for a, c in zip(slopes, upper_slopes)]
+        (R_in,), (R_in_slope,) = dermis(dr.detach(u_in), self._row * 0, slopes=True)
+        values, slopes = values + [R_in], slopes + [R_in_slope]
+        if not tracked:
+            dr.eval(*values)  # the slopes, never read, are dropped untraced into any kernel
+            return values
+        steps = [u_out - dr.detach(u_out)] * 4 + [u_in - dr.detach(u_in)]
+        totals = [value + slope * step for value, slope, step in zip(values, slopes, steps)]
+        # one kernel: the slopes the derivatives read, and the totals' values, which the
+        # blurs and the interreflection series read many times
+        dr.eval(*slopes, *totals)
+        return totals
 
     def _band_sums(self, node_values):
         """Per band, ``sum_q w_bq value_q`` of flat Dr.Jit Floats (nodes of weight 0 skipped)."""
@@ -245,28 +269,54 @@ class BiophysicalModel:
         under unit irradiance (the layers' series closed after :data:`ROUND_TRIPS`), / c(eta).
         ``params``: ``name -> flat Dr.Jit Float`` (T*T) of the four maps."""
         _, _, TensorXf = jit_types()
+        # each node's totals evaluated (layer_totals), so kept: left lazy, each blur and each
+        # peak the interreflection series reads re-ran the table lookups (20 of a 512^2
+        # frame's 82 s)
         flat = [self.layer_totals(q, params) for q in range(self.nodes)]
-        # every node's totals in one kernel, kept: left lazy, each blur and each peak the
-        # interreflection series reads re-ran the table lookups (20 of a 512^2 frame's 82 s)
-        dr.eval(*[x for node in flat for x in node])
         totals = [LayerTotals(*(TensorXf(x, self.shape) for x in node)) for node in flat]
         exitances = band_exitances(self.irradiance, totals, self.kernels, self.weights, self.atlas,
                                    round_trips=ROUND_TRIPS)
         return [exitance.array * self.inverse_exit_fraction for exitance in exitances]
 
+    def local_albedo_nodes(self, params):
+        """Per quadrature node, ``R_bar = R_of + T_of R_in T_ob / (1 - R_in R_ob)`` (eq. 47;
+        flat Dr.Jit Float): the layers' total reflectance at each texel without the blur.
+
+        Each node's value is evaluated on its own: the nodes differ only in kernel inputs, so
+        they share one compiled kernel (and so do their forward-mode derivatives, which
+        :meth:`~polarbssrdf.inverse.biophysical.problem.DataTerm.local_jacobian` reads
+        node by node). Left lazy, a band's nodes fused into one kernel of 2,000-6,000
+        operations per band and per derivative, 2-9 s of LLVM each (bench/RESULTS.md,
+        2026-12-07)."""
+        nodes = []
+        for q in self.used_nodes:
+            R_of, T_of, R_ob, T_ob, R_in = self.layer_totals(q, params)
+            value = R_of + T_of * R_in * T_ob / (1.0 - R_in * R_ob)
+            dr.eval(value)
+            nodes.append(value)
+        return nodes
+
+    @property
+    def used_nodes(self):
+        """The quadrature nodes some band weighs (the others are never evaluated)."""
+        return [int(q) for q in np.flatnonzero(np.any(self.weights > 0, axis=0))]
+
+    def band_sums_numpy(self, node_values):
+        """``(n_bands, n_texels)`` float64 ``sum_q w_bq value_q / c(eta)`` of per-node values
+        over :attr:`used_nodes` (NumPy arrays or flat Dr.Jit Floats)."""
+        values = np.stack([np.asarray(v, dtype=np.float64) for v in node_values])
+        return (self.weights[:, self.used_nodes] @ values) * self.inverse_exit_fraction_numpy
+
     def local_albedo_bands(self, params):
         """Per band, the lobe albedo without the blur (flat Dr.Jit Float): the band integral of
-        eq. 47 / c(eta).
+        eq. 47 / c(eta), :meth:`local_albedo_nodes` summed over the band's quadrature.
 
-        ``R_bar = R_of + T_of R_in T_ob / (1 - R_in R_ob)`` per texel and node: what
-        :meth:`render_bands` gives for maps that are constant over the blur's reach. The
+        What :meth:`render_bands` gives for maps that are constant over the blur's reach. The
         fit's Gauss-Newton steps use its Jacobian (the blur mixes texels but does not
         change this per-texel sensitivity for smooth maps)."""
-        nodes = []
-        for q in range(self.nodes):
-            R_of, T_of, R_ob, T_ob, R_in = self.layer_totals(q, params)
-            nodes.append(R_of + T_of * R_in * T_ob / (1.0 - R_in * R_ob))
-        return [value * self.inverse_exit_fraction for value in self._band_sums(nodes)]
+        nodes = dict(zip(self.used_nodes, self.local_albedo_nodes(params)))
+        values = [nodes.get(q) for q in range(self.nodes)]
+        return [value * self.inverse_exit_fraction for value in self._band_sums(values)]
 
     kernels: list = None
     """Per quadrature node, the normalized SoG kernels of the layer profiles (set by the fit)."""

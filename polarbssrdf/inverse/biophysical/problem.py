@@ -207,15 +207,21 @@ class DataTerm:
         for name in names:
             if name in NUISANCES:
                 if local is None:
-                    local = [np.array(v, dtype=np.float64) for v in self.model.local_albedo_bands(params)]
+                    local = self.model.band_sums_numpy(self.model.local_albedo_nodes(params))
                 sensitivity = self.sensitivity.full(name)
                 columns.append(np.stack([local[b] * sensitivity[b] for b in range(len(local))], axis=-1))
                 continue
             dr.enable_grad(params[name])
-            values = self.model.local_albedo_bands(params)
+            nodes = self.model.local_albedo_nodes(params)
             dr.forward(params[name])
-            columns.append(np.stack([np.array(dr.grad(v), dtype=np.float64) * factors[b]
-                                     for b, v in enumerate(values)], axis=-1))
+            # node by node: every node's derivative is then the same compiled kernel
+            derivatives = []
+            for value in nodes:
+                derivative = dr.grad(value)
+                dr.eval(derivative)
+                derivatives.append(derivative)
+            bands = self.model.band_sums_numpy(derivatives)
+            columns.append(np.stack([bands[b] * factors[b] for b in range(len(bands))], axis=-1))
             dr.disable_grad(params[name])
         jacobian = np.stack(columns, axis=-1)
         jacobian.flags.writeable = False

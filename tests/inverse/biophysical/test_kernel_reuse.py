@@ -96,3 +96,49 @@ def test_every_node_and_other_maps_reuse_the_models_kernels(face):
     surface = atlas.valid
     for b in range(len(bands)):  # to the tables' interpolation error
         np.testing.assert_allclose(local[b][surface], albedo[b][surface], rtol=1e-4)
+
+
+def test_the_jacobian_compiles_nothing_for_other_bands(face):
+    """The local Jacobian reads each quadrature node's forward derivative on its own
+    (:meth:`~polarbssrdf.inverse.biophysical.model.BiophysicalModel.local_albedo_nodes`),
+    and the nodes share their kernels: after one model's Jacobian, a model of other bands
+    (another quadrature, another number of nodes per band) compiles no kernel for its own.
+    Summed per band in Dr.Jit, the kernels followed each band's nodes."""
+    from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel
+    from polarbssrdf.inverse.biophysical.problem import DataTerm
+    from polarbssrdf.spectral.bands import bandpass_bands
+
+    atlas, bands, maps, albedo = face
+
+    def jacobian(bands):
+        model = BiophysicalModel(bands, atlas, maps["eta"])
+        observed = np.full((len(bands),) + atlas.valid.shape, 0.4)
+        term = DataTerm(model, observed, atlas.valid.astype(np.float64), np.full(len(bands), 0.01), 0.0)
+        return model, term.local_jacobian({n: maps[n] for n in PARAMETERS}, PARAMETERS)
+
+    first_model, first = jacobian(bands)
+    other = bandpass_bands([430.0, 500.0, 560.0, 620.0, 680.0], 30.0)
+    (model, second), launched, compiled = compiled_kernels(lambda: jacobian(other))
+    assert model.nodes != first_model.nodes and second.shape[1:] == (len(other), len(PARAMETERS))
+    assert np.all(np.isfinite(second)) and np.any(second != 0.0)
+    assert compiled == [], f"the other bands' Jacobian compiled {len(compiled)} of {launched} kernels"
+
+
+def test_no_kernel_of_a_fit_traces_the_tables_of_every_node(face):
+    """The layer totals enter the derivatives as their evaluated slopes times ``d ln
+    sigma_a`` (:meth:`~polarbssrdf.inverse.biophysical.model.BiophysicalModel.layer_totals`),
+    so no kernel of a fit grows with the table lookups of all the bands' nodes: the largest is
+    below 2,500 operations. Traced through the tables, the Jacobian's and the gradient's
+    kernels reached 6,100 operations on the default bands, each 2-9 s of LLVM on a cold
+    kernel cache (bench/RESULTS.md, 2026-12-07)."""
+    from polarbssrdf.inverse.biophysical.fit import BiophysicalConfig, fit_biophysical
+
+    atlas, bands, _, _ = face
+    config = BiophysicalConfig(iterations=3, rounds=2, kernel_tolerance=0.0)
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history_clear()
+        fit_biophysical(albedo_maps(face, 2), bands, atlas, config)
+        history = dr.kernel_history([dr.KernelType.JIT])
+    assert len(history) > 100
+    largest = max(entry["operation_count"] for entry in history)
+    assert largest < 2500, f"a kernel of {largest} operations"
