@@ -229,7 +229,7 @@ class BiophysicalModel:
         interpolant's slope, evaluated with ``T``): the same value, and derivatives that
         reach the parameters through ``u`` alone. Traced through the tables instead, every
         derivative kernel re-ran every node's table lookups: 2,000-6,000 operations per
-        kernel and 2-9 s of LLVM each (bench/RESULTS.md, 2026-12-07). One node's kernel
+        kernel and 2-9 s of LLVM each (bench/RESULTS.md, 2026-12-08). One node's kernel
         serves every node (the nodes differ in kernel inputs only)."""
 
         sa_out, sa_in = self.absorption(node, params)
@@ -287,7 +287,7 @@ class BiophysicalModel:
         :meth:`~polarbssrdf.inverse.biophysical.problem.DataTerm.local_jacobian` reads
         node by node). Left lazy, a band's nodes fused into one kernel of 2,000-6,000
         operations per band and per derivative, 2-9 s of LLVM each (bench/RESULTS.md,
-        2026-12-07)."""
+        2026-12-08)."""
         nodes = []
         for q in self.used_nodes:
             R_of, T_of, R_ob, T_ob, R_in = self.layer_totals(q, params)
