@@ -12,9 +12,9 @@ of the atlas. Gaussians narrower than half a texel are the identity at this
 resolution.
 
 A whole sum of Gaussians is two fused Dr.Jit kernels: the ``u`` passes of
-every Gaussian in one (all taps of all Gaussians gathered in one symbolic loop
-over the offsets, whose bound and half widths are kernel inputs, so the kernel
-is the same whatever the widths), the ``v`` passes and the weighted sum in the other; on the
+every Gaussian in one (each Gaussian's taps a symbolic loop over the offsets
+whose bound, its half width, is a kernel input, so the kernel is the same
+whatever the widths), the ``v`` passes and the weighted sum in the other; on the
 backend of a Dr.Jit input or on the LLVM backend for NumPy input. Each
 Gaussian keeps its own normalization per pass, precomputed once per atlas
 and variance (:class:`BlurGeometry`). With an AD-enabled Dr.Jit input the

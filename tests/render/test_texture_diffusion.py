@@ -180,8 +180,8 @@ def test_other_weights_and_unaligned_input_reuse_the_blur_kernels():
 
 
 def test_other_widths_reuse_the_blur_kernels_and_the_adjoint_is_the_transpose():
-    """The taps are a symbolic loop whose bound and half widths are kernel inputs: a blur of
-    other variances (5 and 23 taps a side where the first had 7 and 18) compiles nothing,
+    """Each Gaussian's taps are a symbolic loop whose bound, its half width, is a kernel
+    input: a blur of other variances (5 and 23 taps a side where the first had 7 and 18) compiles nothing,
     forward or reverse. Unrolled, each set of widths was a kernel of its own, thousands of
     operations long. The reverse pass stays the forward blur's transpose:
     ``<w, B x> = <B^T w, x>``."""
