@@ -70,8 +70,9 @@ class _Table:
                              for quantity in coefficients]
 
     def __call__(self, u, row, slopes=False):
-        """Values of every quantity at ``u`` (Dr.Jit Float) in eta row ``row`` (UInt32), and
-        with ``slopes`` their derivatives d/du of the interpolant as a second list."""
+        """``(values, slopes)``: every quantity at ``u`` (Dr.Jit Float) in eta row ``row``
+        (UInt32), and with ``slopes`` their derivatives d/du of the interpolant (else an
+        empty list)."""
 
         Float, UInt32, _ = jit_types()
         x = (u - self.u0) * self.inv_h
@@ -84,7 +85,7 @@ class _Table:
             out.append(g[0] + t * (g[1] + t * (g[2] + t * g[3])))
             if slopes:
                 derivatives.append((g[1] + t * (2.0 * g[2] + 3.0 * t * g[3])) * self.inv_h)
-        return (out, derivatives) if slopes else out
+        return out, derivatives
 
 
 def _hermite_coefficients(f, m, h):
@@ -236,15 +237,16 @@ class BiophysicalModel:
         u_out, u_in = dr.log(sa_out), dr.log(sa_in)
         tracked = dr.grad_enabled(u_out) or dr.grad_enabled(u_in)
         epidermis, dermis = self.tables[node]
-        values, slopes = epidermis(dr.detach(u_out), self._row, slopes=True)
+        # the slopes only where a derivative will read them
+        values, slopes = epidermis(dr.detach(u_out), self._row, slopes=tracked)
         if self._frac is not None:
-            upper, upper_slopes = epidermis(dr.detach(u_out), self._row + 1, slopes=True)
+            upper, upper_slopes = epidermis(dr.detach(u_out), self._row + 1, slopes=tracked)
             values = [a + self._frac * (c - a) for a, c in zip(values, upper)]
             slopes = [a + self._frac * (c - a) for a, c in zip(slopes, upper_slopes)]
-        (R_in,), (R_in_slope,) = dermis(dr.detach(u_in), self._row * 0, slopes=True)
-        values, slopes = values + [R_in], slopes + [R_in_slope]
+        inner, inner_slopes = dermis(dr.detach(u_in), self._row * 0, slopes=tracked)
+        values, slopes = values + inner, slopes + inner_slopes
         if not tracked:
-            dr.eval(*values)  # the slopes, never read, are dropped untraced into any kernel
+            dr.eval(*values)
             return values
         steps = [u_out - dr.detach(u_out)] * 4 + [u_in - dr.detach(u_in)]
         totals = [value + slope * step for value, slope, step in zip(values, slopes, steps)]

@@ -129,7 +129,7 @@ def test_no_kernel_of_a_fit_traces_the_tables_of_every_node(face):
     sigma_a`` (:meth:`~polarbssrdf.inverse.biophysical.model.BiophysicalModel.layer_totals`),
     so no kernel of a fit grows with the table lookups of all the bands' nodes: the largest is
     below 2,500 operations. Traced through the tables, the Jacobian's and the gradient's
-    kernels reached 6,100 operations on the default bands, each 2-9 s of LLVM on a cold
+    kernels reached 5,933 operations on the default bands, each 2-9 s of LLVM on a cold
     kernel cache (bench/RESULTS.md, 2026-12-08)."""
     from polarbssrdf.inverse.biophysical.fit import BiophysicalConfig, fit_biophysical
 
