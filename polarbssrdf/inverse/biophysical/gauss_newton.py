@@ -33,8 +33,13 @@ constant forcing term. At 512^2 the residual stalls at 1-5% for a hundred iterat
 after the first steps; solving to 1e-3 cost 1580 iterations in 10 steps (111 s) for the
 same maps as 478 iterations (36 s; bench/RESULTS.md, 2026-12-02)."""
 
-STEP_MAX_ITERATIONS = 100
-"""A cap on a step's conjugate-gradient iterations (the damping still guards the step)."""
+STEP_MAX_ITERATIONS = 40
+"""A cap on a step's conjugate-gradient iterations (the damping still guards the step). Where
+features free the prior (:func:`~polarbssrdf.inverse.biophysical.prior.feature_coupling`) the
+Fourier preconditioner, which assumes the stationary field everywhere, leaves the residual
+at 20-100% of the right-hand side after 20 iterations and no lower after 100: on the freckled
+cheek of test_freckles.py every step ran into a cap of 100. A cap of 40 took its biophysical
+frame from 71.8 s to 49.1 s with the same freckle figures (bench/RESULTS.md, 2026-12-08)."""
 
 BOUND_MARGIN = 1e-3
 """A value within this fraction of its bounds range of a bound counts as at the bound
