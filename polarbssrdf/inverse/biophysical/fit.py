@@ -54,7 +54,7 @@ import numpy as np
 from polarbssrdf._arrays import to_jit
 from polarbssrdf.inverse.biophysical.config import NUISANCES, BiophysicalConfig
 from polarbssrdf.inverse.biophysical.correlation import albedo_correlation_length
-from polarbssrdf.inverse.biophysical.gauss_newton import PriorTerms, gauss_newton
+from polarbssrdf.inverse.biophysical.gauss_newton import INITIAL_DAMPING, PriorTerms, gauss_newton
 from polarbssrdf.inverse.biophysical.model import PARAMETERS, BiophysicalModel, jit_types
 from polarbssrdf.inverse.biophysical.oxygenation import face_oxygenation
 from polarbssrdf.inverse.biophysical.prior import SpatialPrior, capture_gain, feature_coupling, noise_spectrum
@@ -370,6 +370,7 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
     texel = median_intensity_texel(observed, good)
     history = []
     kernels = None
+    damping = INITIAL_DAMPING
     for round_index in range(config.rounds):
         t_round = time.perf_counter()
         new_kernels = fit_kernels(maps, texel, model)
@@ -384,8 +385,9 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
         # round the loop allows, and the one after which it stops, end at the config's tolerance
         tolerance = (config.tolerance if round_index == config.rounds - 1
                      else max(config.tolerance, EARLY_ROUND_TOLERANCE))
-        maps, before, after, losses = gauss_newton(data, prior, maps, list(held), bounds, movable,
-                                                   config.iterations, tolerance, step_progress)
+        maps, before, after, losses, damping = gauss_newton(
+            data, prior, maps, list(held), bounds, movable, config.iterations, tolerance, step_progress,
+            damping)
         entry = {"round": round_index, "loss_start": before, "loss_end": after,
                  "losses": [float(v) for v in losses], "kernel_change": change}
         moved = 0.0
@@ -410,8 +412,9 @@ def fit_biophysical(albedo_maps, bands, atlas, config=None, start=None, held=Non
                      f"kernel change {'-' if change is None else f'{change:.4f}'}, largest move {moved:.3f}")
         if change is not None and change < config.kernel_tolerance and moved < OUTER_TOLERANCE:
             if tolerance > config.tolerance:  # the round ended early: finish its steps
-                maps, _, after, losses = gauss_newton(data, prior, maps, list(held), bounds, movable,
-                                                      config.iterations, config.tolerance, step_progress)
+                maps, _, after, losses, damping = gauss_newton(
+                    data, prior, maps, list(held), bounds, movable, config.iterations, config.tolerance,
+                    step_progress, damping)
                 entry.update(loss_end=after, finished=[float(v) for v in losses],
                              seconds=time.perf_counter() - t_round)
             break

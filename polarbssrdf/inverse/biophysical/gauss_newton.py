@@ -41,6 +41,9 @@ at 20-100% of the right-hand side after 20 iterations and no lower after 100: on
 cheek of test_freckles.py every step ran into a cap of 100. A cap of 40 took its biophysical
 frame from 71.8 s to 49.1 s with the same freckle figures (bench/RESULTS.md, 2026-12-08)."""
 
+INITIAL_DAMPING = 1e-3
+"""Levenberg-Marquardt damping of a fit's first step (relative to the diagonal)."""
+
 BOUND_MARGIN = 1e-3
 """A value within this fraction of its bounds range of a bound counts as at the bound
 (the Gauss-Newton step's active set)."""
@@ -275,7 +278,8 @@ def _gradient(evaluated, names):
     return np.stack([np.array(dr.grad(params[n]), dtype=np.float64) for n in names], axis=-1)
 
 
-def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tolerance, progress=None):
+def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tolerance, progress=None,
+                 damping=INITIAL_DAMPING):
     """Minimize data term + prior over the maps ``prior.names`` and their free face means.
 
     Parameters
@@ -293,12 +297,16 @@ def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tol
         The unknowns' texels (the spatial prior's, in its order).
     iterations, tolerance :
         Steps at most; a step that lowers the loss by less than ``tolerance`` of it ends the fit.
+    damping : float
+        The Levenberg-Marquardt damping of the first step, relative to the diagonal.
 
     A step solves ``(H + mu diag(H)) delta = -g`` (:func:`solve_step`); a step that does not
     lower the loss is tried at :data:`ARC_FRACTIONS` of its length along the projected arc
     ``clip(x + t delta)``, then with the damping grown; an accepted one updates the damping
     by Nielsen's rule (Madsen, Nielsen and Tingleff, Methods for non-linear least squares
-    problems, 2004, sec. 3.2). Returns ``(maps, first loss, last loss, accepted losses)``.
+    problems, 2004, sec. 3.2), starting from ``damping``. Returns ``(maps, first loss, last
+    loss, accepted losses, damping)``: the last is where the next round starts (its
+    objective moves only by the noise and spreads the round re-estimates).
     """
     Float, _, _ = jit_types()
     names = prior.names
@@ -316,7 +324,7 @@ def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tol
     gradient = _gradient(evaluated, names)[movable] + prior_x
     first = loss
     losses = [loss]
-    damping, growth = 1e-3, 2.0
+    growth = 2.0
     lows = np.array([bounds[n][0] for n in names])
     highs = np.array([bounds[n][1] for n in names])
     margin = BOUND_MARGIN * (highs - lows)
@@ -362,4 +370,4 @@ def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tol
     for n in names:
         out[n] = flat[n].reshape(np.shape(maps[n]))
     prior.mu = mean
-    return out, first, loss, losses
+    return out, first, loss, losses, damping
