@@ -36,9 +36,9 @@ same maps as 478 iterations (36 s; bench/RESULTS.md, 2026-12-02)."""
 STEP_MAX_ITERATIONS = 40
 """A cap on a step's conjugate-gradient iterations (the damping still guards the step). Where
 features free the prior (:func:`~polarbssrdf.inverse.biophysical.prior.feature_coupling`) the
-Fourier preconditioner, which assumes the stationary field everywhere, leaves the residual
-at 20-100% of the right-hand side after 20 iterations and no lower after 100: on the freckled
-cheek of test_freckles.py every step ran into a cap of 100. A cap of 40 took its biophysical
+Fourier preconditioner, which assumes the stationary field everywhere, leaves a relative
+residual of 0.3-3.3 after 20 iterations and 0.07-2.8 after 100: on the freckled cheek of
+test_freckles.py all but two steps ran into a cap of 100. A cap of 40 took its biophysical
 frame from 71.8 s to 49.1 s with the same freckle figures (bench/RESULTS.md, 2026-12-08)."""
 
 INITIAL_DAMPING = 1e-3
