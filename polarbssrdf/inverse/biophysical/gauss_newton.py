@@ -305,8 +305,10 @@ def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tol
     ``clip(x + t delta)``, then with the damping grown; an accepted one updates the damping
     by Nielsen's rule (Madsen, Nielsen and Tingleff, Methods for non-linear least squares
     problems, 2004, sec. 3.2), starting from ``damping``. Returns ``(maps, first loss, last
-    loss, accepted losses, damping)``: the last is where the next round starts (its
-    objective moves only by the noise and spreads the round re-estimates).
+    loss, accepted losses, damping)``: the last is the damping the last accepted step left
+    (``damping`` if none was), where the next round starts (its objective moves only by the
+    noise and spreads the round re-estimates); not the damping grown past every step when
+    the round found no lower loss, which would leave the next round no step to try.
     """
     Float, _, _ = jit_types()
     names = prior.names
@@ -325,6 +327,7 @@ def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tol
     first = loss
     losses = [loss]
     growth = 2.0
+    settled = damping  # the damping of the last accepted step: where the next round starts
     lows = np.array([bounds[n][0] for n in names])
     highs = np.array([bounds[n][1] for n in names])
     margin = BOUND_MARGIN * (highs - lows)
@@ -356,6 +359,7 @@ def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tol
         model = fraction * linear - fraction ** 2 * (linear - predicted)
         ratio = min((loss - trial_loss) / max(model, 1e-30), 1.0)
         damping = max(damping * max(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), 1e-6)
+        settled = damping
         growth = 2.0
         decrease = (loss - trial_loss) / max(abs(loss), 1e-30)
         flat, mean, loss = trial, trial_mean, trial_loss
@@ -370,4 +374,4 @@ def gauss_newton(data, prior, maps, fixed_maps, bounds, movable, iterations, tol
     for n in names:
         out[n] = flat[n].reshape(np.shape(maps[n]))
     prior.mu = mean
-    return out, first, loss, losses, damping
+    return out, first, loss, losses, settled
